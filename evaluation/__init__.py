@@ -1,0 +1,1 @@
+"""Evaluation of monoflow: scene-flow test-set readers, community metrics, ICP/FGR baselines, reports, ablations."""
