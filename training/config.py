@@ -1,0 +1,67 @@
+"""Configuration of a scene-flow training run (saved as ``config.json`` in the run folder)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from training.losses.total import LossWeights
+from training.model.halflownet import HALFlowConfig
+
+
+@dataclass
+class DataConfig:
+    """What the trainer reads from a stage-one cache.
+
+    n_points: points sampled per cloud per step (seeded by (seed, epoch, pair index), so results do not
+        depend on the number of loader workers).
+    val_fraction: the last fraction of each sequence's pairs held out for validation (only used when the
+        cache holds ground-truth flow); 0 disables validation.
+    val_pairs_max: at most this many held-out pairs are scored at each validation.
+    colour_features: use RGB in [0, 1] as the per-point features (else zeros).
+    jitter_deg / jitter_m: the second pass's static flow is moved by a random rigid motion of at most
+        these angles (degrees, per axis) and translations (metres, per axis) — the released code's
+        augmentation; 0 disables it.
+    workers: DataLoader worker processes (0 = load in the training process).
+    """
+
+    n_points: int = 8192
+    val_fraction: float = 0.1
+    val_pairs_max: int = 64
+    colour_features: bool = True
+    jitter_deg: float = 0.0
+    jitter_m: float = 0.0
+    workers: int = 2
+
+
+@dataclass
+class OptimConfig:
+    """Adam with the paper's step decay: lr · decay^(samples // decay_every), floored at lr_min."""
+
+    lr: float = 1e-3
+    decay: float = 0.7
+    decay_every_samples: int = 200_000
+    lr_min: float = 1e-4
+    batch_size: int = 5
+    grad_clip: float = 0.0
+
+
+@dataclass
+class TrainConfig:
+    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` pairs)."""
+
+    cache: str = "cache/synthetic"
+    run_dir: str = "runs/flow"
+    steps: int = 1000
+    epochs: float = 0.0
+    seed: int = 0
+    device: str = "auto"
+    amp: bool = False
+    deterministic: bool = False
+    log_every: int = 10
+    val_every: int = 100
+    ckpt_every: int = 100
+    progress: bool = True
+    data: DataConfig = field(default_factory=DataConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    model: HALFlowConfig = field(default_factory=HALFlowConfig)
+    loss: LossWeights = field(default_factory=LossWeights)

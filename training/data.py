@@ -1,0 +1,208 @@
+"""From the stage-one cache to training batches.
+
+Every sample is a pair (t, t+1) with ``n_points`` points drawn from each cloud. The draw is seeded by
+``(seed, epoch, pair index)`` and done inside ``__getitem__``, so a batch is the same whatever the number
+of DataLoader workers or ranks. All points are in camera-t coordinates (x right, y down, z forward,
+metres); ``pc2`` is in camera-(t+1) coordinates, so flow includes the ego-motion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from pipeline import geometry
+
+_VAL_EPOCH = -1  # epoch tag of the fixed validation draw
+
+
+@dataclass
+class FlowBatch:
+    """A batch of B pairs, each cloud with N points.
+
+    pc1, pc2: (B, N, 3) float32 metres; feat1, feat2: (B, N, 3) RGB in [0, 1] or zeros;
+    static_flow: (B, N, 3) flow the camera motion explains, pc1's points (already jittered when the
+        jitter augmentation is on); K: (B, 3, 3) pixels; depth2: (B, H, W) metres, 0 = invalid;
+    gt_flow: (B, N, 3) or None; moving: (B, N) bool or None; index: (B,) pair indices in the cache.
+    """
+
+    pc1: Tensor
+    pc2: Tensor
+    feat1: Tensor
+    feat2: Tensor
+    static_flow: Tensor
+    K: Tensor
+    depth2: Tensor
+    index: Tensor
+    gt_flow: Tensor | None = None
+    moving: Tensor | None = None
+
+    def __post_init__(self) -> None:
+        B, N, _ = self.pc1.shape
+        expect = {"pc1": (B, N, 3), "pc2": (B, None, 3), "feat1": (B, N, 3), "feat2": (B, None, 3),
+                  "static_flow": (B, N, 3), "K": (B, 3, 3), "depth2": (B, None, None), "index": (B,)}
+        if self.gt_flow is not None:
+            expect["gt_flow"] = (B, N, 3)
+        if self.moving is not None:
+            expect["moving"] = (B, N)
+        for name, shape in expect.items():
+            got = tuple(getattr(self, name).shape)
+            if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
+                raise ValueError(f"FlowBatch.{name} has shape {got}, expected {shape} (None = any)")
+
+    def to(self, device) -> "FlowBatch":
+        moved = {f.name: getattr(self, f.name) for f in fields(self)}
+        return FlowBatch(**{k: (v.to(device, non_blocking=True) if isinstance(v, Tensor) else v)
+                            for k, v in moved.items()})
+
+
+def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
+    """``n_want`` indices into ``n_have`` points: without replacement when possible, else all + repeats."""
+    if n_have <= 0:
+        raise ValueError("a cloud in the cache is empty")
+    if n_have >= n_want:
+        return rng.choice(n_have, size=n_want, replace=False)
+    extra = rng.choice(n_have, size=n_want - n_have, replace=True)
+    return rng.permutation(np.concatenate([np.arange(n_have), extra]))
+
+
+def random_rigid(rng: np.random.Generator, max_deg: float, max_m: float) -> np.ndarray:
+    """A 4×4 rigid motion with Euler angles in ±max_deg (degrees) and translation in ±max_m (metres)."""
+    angles = np.radians(rng.uniform(-max_deg, max_deg, size=3)) if max_deg > 0 else np.zeros(3)
+    t = rng.uniform(-max_m, max_m, size=3) if max_m > 0 else np.zeros(3)
+    return geometry.pose_vec_to_mat(np.concatenate([t, angles]))
+
+
+class PairDataset(torch.utils.data.Dataset):
+    """Samples of a :class:`pipeline.cache.CacheReader` restricted to ``indices``.
+
+    Call :meth:`set_epoch` before each epoch; the draw for pair ``i`` depends only on
+    ``(seed, epoch, i)``.
+    """
+
+    def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
+                 jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None) -> None:
+        self.reader = reader
+        self.indices = list(indices)
+        self.n_points = n_points
+        self.seed = seed
+        self.colour_features = colour_features
+        self.jitter_deg = jitter_deg
+        self.jitter_m = jitter_m
+        self.epoch = 0 if fixed_epoch is None else fixed_epoch
+        self._fixed = fixed_epoch is not None
+
+    def set_epoch(self, epoch: int) -> None:
+        if not self._fixed:
+            self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, pos: int) -> dict[str, np.ndarray]:
+        i = self.indices[pos]
+        s = self.reader[i]
+        rng = np.random.default_rng([self.seed, self.epoch - _VAL_EPOCH, i])  # validation draws use tag 0
+        c1 = _choose(rng, len(s.pc1), self.n_points)
+        c2 = _choose(rng, len(s.pc2), self.n_points)
+        pc1 = s.pc1[c1].astype(np.float32)
+        sf = s.static_flow[c1].astype(np.float32)
+        if self.jitter_deg > 0 or self.jitter_m > 0:
+            J = random_rigid(rng, self.jitter_deg, self.jitter_m)
+            sf = (geometry.transform_points(J, (pc1 + sf).astype(np.float64)) - pc1).astype(np.float32)
+        if self.colour_features:
+            f1 = s.rgb1[c1].astype(np.float32) / 255.0
+            f2 = s.rgb2[c2].astype(np.float32) / 255.0
+        else:
+            f1 = np.zeros((self.n_points, 3), np.float32)
+            f2 = np.zeros((self.n_points, 3), np.float32)
+        out = {"pc1": pc1, "pc2": s.pc2[c2].astype(np.float32), "feat1": f1, "feat2": f2,
+               "static_flow": sf, "K": np.asarray(s.K, np.float32), "depth2": np.asarray(s.depth2, np.float32),
+               "index": np.int64(i)}
+        if s.gt_flow is not None:
+            out["gt_flow"] = s.gt_flow[c1].astype(np.float32)
+        if s.moving is not None:
+            out["moving"] = np.asarray(s.moving)[c1].astype(bool)
+        return out
+
+
+def collate(samples: list[dict[str, np.ndarray]]) -> FlowBatch:
+    """Stack samples into a :class:`FlowBatch` (optional fields only when every sample has them)."""
+    def stack(key: str) -> Tensor | None:
+        if not all(key in s for s in samples):
+            return None
+        return torch.from_numpy(np.stack([s[key] for s in samples]))
+
+    return FlowBatch(pc1=stack("pc1"), pc2=stack("pc2"), feat1=stack("feat1"), feat2=stack("feat2"),
+                     static_flow=stack("static_flow"), K=stack("K"), depth2=stack("depth2"),
+                     index=stack("index"), gt_flow=stack("gt_flow"), moving=stack("moving"))
+
+
+def split_pairs(reader, val_fraction: float) -> tuple[list[int], list[int]]:
+    """Hold out the last ``val_fraction`` of each sequence's pairs (contiguous, so less leakage)."""
+    train: list[int] = []
+    val: list[int] = []
+    for seq in reader.sequences:
+        idx = list(reader.pairs_of(seq))
+        n_val = int(math.floor(len(idx) * val_fraction)) if val_fraction > 0 else 0
+        if n_val and len(idx) - n_val >= 1:
+            train += idx[: len(idx) - n_val]
+            val += idx[len(idx) - n_val:]
+        else:
+            train += idx
+    return train, val
+
+
+class StepBatches(torch.utils.data.Sampler):
+    """Yields the batch (list of dataset positions) of every global step from ``start_step`` on.
+
+    Epoch ``e`` is a permutation seeded by ``(seed, e)``; global step ``s`` takes ``batch_size``
+    consecutive entries of it, and rank ``r`` of ``world`` takes its contiguous share of those.
+    """
+
+    def __init__(self, n: int, batch_size: int, seed: int, start_step: int, total_steps: int,
+                 rank: int = 0, world: int = 1, on_epoch=None) -> None:
+        if batch_size % world:
+            raise ValueError(f"batch size {batch_size} is not divisible by the {world} processes")
+        if n < batch_size:
+            raise ValueError(f"only {n} training pairs for a batch of {batch_size}")
+        self.n, self.bs, self.seed = n, batch_size, seed
+        self.start, self.total, self.rank, self.world = start_step, total_steps, rank, world
+        self.per_epoch = n // batch_size
+        self.on_epoch = on_epoch
+
+    def epoch_of(self, step: int) -> int:
+        return step // self.per_epoch
+
+    def batch(self, step: int) -> list[int]:
+        epoch, k = divmod(step, self.per_epoch)
+        perm = np.random.default_rng([self.seed, epoch]).permutation(self.n)
+        glob = perm[k * self.bs:(k + 1) * self.bs]
+        share = self.bs // self.world
+        return [int(x) for x in glob[self.rank * share:(self.rank + 1) * share]]
+
+    def __iter__(self):
+        for step in range(self.start, self.total):
+            yield [(self.epoch_of(step), p) for p in self.batch(step)]
+
+    def __len__(self) -> int:
+        return max(0, self.total - self.start)
+
+
+class EpochAware(torch.utils.data.Dataset):
+    """Wraps a :class:`PairDataset` so the sampler's (epoch, position) keys select the draw."""
+
+    def __init__(self, base: PairDataset) -> None:
+        self.base = base
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, key: tuple[int, int]) -> dict[str, np.ndarray]:
+        epoch, pos = key
+        self.base.set_epoch(epoch)
+        return self.base[pos]
