@@ -1,0 +1,31 @@
+"""Chamfer loss (paper §III-D, eq. 13)."""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from training.knn import KnnBackend, knn
+from training.losses._common import check_points
+from training.pointops import group
+
+
+def nearest_sq_dist(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") -> Tensor:
+    """Squared distance (B, M) from every ``query`` point (B, M, 3) to its nearest ``ref`` point (B, N, 3).
+
+    The neighbour is found without gradient (:func:`training.knn.knn`); the distance is recomputed from
+    the gathered coordinates, so it is differentiable in both clouds (no square root: finite gradient
+    even for coinciding points).
+    """
+    _, idx = knn(query, ref, 1, backend)
+    return ((group(ref, idx)[:, :, 0] - query) ** 2).sum(-1)
+
+
+def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto") -> Tensor:
+    """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
+
+    ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
+    Each direction is averaged over its own points (the paper writes sums), then over the batch.
+    """
+    check_points("chamfer", "p_warped", p_warped)
+    check_points("chamfer", "pc2", pc2, p_warped.shape[0])
+    return nearest_sq_dist(p_warped, pc2, backend).mean() + nearest_sq_dist(pc2, p_warped, backend).mean()
