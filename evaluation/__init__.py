@@ -1,1 +1,8 @@
-"""Evaluation of monoflow: scene-flow test-set readers, community metrics, ICP/FGR baselines, reports, ablations."""
+"""Evaluation of monoflow: scene-flow test-set readers, community metrics, ICP/FGR baselines, reports, ablations.
+
+Core modules: :mod:`evaluation.sample` (the test sample), :mod:`evaluation.readers` (FlowNet3D /
+HPLFlowNet / OpenSceneFlow test sets, :func:`~evaluation.readers.load_split`), :mod:`evaluation.axes`
+(their axis conventions), :mod:`evaluation.metrics` (EPE3D, Acc3DS/R, Outliers3D),
+:mod:`evaluation.baselines` (zero, static pose, ICP, FGR) and :mod:`evaluation.predictions` (saved
+predictions, one HDF5 file). Nothing heavy is imported here.
+"""

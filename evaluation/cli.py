@@ -1,0 +1,149 @@
+"""``monoflow-evaluate``: score trained nets and baselines on a scene-flow test split.
+
+Examples::
+
+    monoflow-evaluate run --split cache/demo/world/sceneflow/flownet3d --checkpoint runs/demo/latest.pt \\
+        --baselines zero,icp-p2p,fgr --out runs/demo/eval
+    monoflow-evaluate run --split KITTI_processed_occ_final --format hplflownet --baselines icp-p2l --seeds 0,1,2
+    monoflow-evaluate score runs/demo/eval/predictions-*.h5     # recompute metrics from saved predictions
+    monoflow-evaluate ablations --world cache/demo/world --out runs/ablations --steps 200
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from pipeline.errors import ConfigError, run_cli
+
+
+def _csv(text: str) -> list[str]:
+    return [t for t in (x.strip() for x in text.split(",")) if t]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="monoflow-evaluate", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    sub = p.add_subparsers(dest="command")
+    r = sub.add_parser("run", help="evaluate checkpoints and baselines on a split")
+    r.add_argument("--split", required=True, help="test split folder (FlowNet3D npz, HPLFlowNet, OpenSceneFlow h5)")
+    r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
+    r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
+    r.add_argument("--baselines", default="zero,icp-p2p,icp-p2l,fgr",
+                   help="comma list of zero, icp-p2p, icp-p2l, fgr ('' for none)")
+    r.add_argument("--protocol", default="paper", choices=("paper", "full"))
+    r.add_argument("--n-points", type=int, default=None, help="points sampled per cloud (default: the net's, else 8192)")
+    r.add_argument("--n-score", type=int, default=None, help="scored points, paper protocol (default: net's L0, else 2048)")
+    r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
+    r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
+    r.add_argument("--device", default="auto")
+    r.add_argument("--out", default="runs/eval", help="folder for results.md/json/csv")
+    r.add_argument("--save-predictions", action="store_true",
+                   help="also write predictions-<method>.h5 (scored points, predicted and true flow per scene)")
+    r.add_argument("--plots", action="store_true", help="bar chart and top-down error views (needs matplotlib)")
+    r.add_argument("--no-progress", action="store_true")
+    s = sub.add_parser("score", help="recompute metrics from a predictions file")
+    s.add_argument("predictions", nargs="+")
+    a = sub.add_parser("ablations", help="train and evaluate the paper's Table II / III variants")
+    from evaluation.ablations import add_arguments
+
+    add_arguments(a)
+    return p
+
+
+def _run(args) -> int:
+    from evaluation.methods import NetMethod, make_baseline
+    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+    from evaluation.readers import load_split
+    from evaluation.report import markdown_table, write_reports
+
+    split = load_split(args.split, args.format)
+    scenes = list(split) if not args.max_scenes else [split[i] for i in range(min(args.max_scenes, len(split)))]
+    nets = [NetMethod(c, device=args.device) for c in args.checkpoint]
+    methods = [*nets, *[make_baseline(b) for b in _csv(args.baselines)]]
+    if not methods:
+        raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
+    sizes = {(n.n_points, n.n_score) for n in nets}
+    if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
+        raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
+    n_points, n_score = sizes.pop() if sizes else (8192, 2048)
+    cfg = ProtocolConfig(protocol=args.protocol, n_points=args.n_points or n_points,
+                         n_score=args.n_score or n_score, seeds=tuple(int(s) for s in _csv(args.seeds)))
+    out = Path(args.out)
+    writers: dict = {}
+    on_prediction = None
+    if args.save_predictions:
+        import re
+
+        from evaluation.predictions import PredictionWriter
+
+        out.mkdir(parents=True, exist_ok=True)
+        for m in methods:
+            slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", m.name).strip("_")
+            writers[m.name] = PredictionWriter(out / f"predictions-{slug}.h5", m.name)
+
+        def on_prediction(name, pred):
+            writers[name].add(pred.name, pred.points, pred.pred_flow, pred.gt_flow, pred.moving)
+    t0 = time.perf_counter()
+    try:
+        results = run_protocol(scenes, methods, cfg, on_prediction=on_prediction, progress=not args.no_progress)
+    except BaseException:
+        for w in writers.values():
+            w.abort()
+        raise
+    for w in writers.values():
+        w.close()
+    rows = summary_rows(results)
+    title = (f"{len(scenes)} scenes of {args.split} — protocol {cfg.protocol}, {cfg.n_points} points sampled, "
+             f"{cfg.n_score if cfg.protocol == 'paper' else 'all'} scored, seeds {list(cfg.seeds)}")
+    details = {"protocol": cfg.__dict__, "split": str(args.split), "per_scene": {r.name: r.per_scene for r in results},
+               "seconds": time.perf_counter() - t0}
+    write_reports(out, rows, details, title)
+    if args.plots:
+        from evaluation.plots import write_plots
+
+        write_plots(out, rows, scenes, methods, cfg)
+    print(markdown_table(rows, title))
+    print(f"reports in {out}/results.{{md,json,csv}}")
+    return 0
+
+
+def _score(args) -> int:
+    from evaluation.predictions import predictions_method, score_predictions
+    from evaluation.report import markdown_table
+
+    rows = []
+    for path in args.predictions:
+        m = score_predictions(path)
+        row = {"method": m.get("method") or predictions_method(path),
+               **{k: m[k] for k in ("EPE3D", "Acc3DS", "Acc3DR", "Outliers3D")}}
+        for subset in ("static", "moving"):
+            if subset in m:
+                row[f"EPE3D_{subset}"] = m[subset]["EPE3D"]
+        rows.append(row)
+    print(markdown_table(rows, "scores recomputed from saved predictions"))
+    return 0
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    if args.command == "run":
+        return _run(args)
+    if args.command == "score":
+        return _score(args)
+    from evaluation.ablations import run_ablations
+
+    return run_ablations(args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(_main, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,50 @@
+"""Reports: a Markdown table like the paper's Table I on stdout and in ``results.md``, plus JSON and CSV."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+COLUMNS = (("EPE3D", "EPE3D (m)↓"), ("Acc3DS", "Acc3DS↑"), ("Acc3DR", "Acc3DR↑"), ("Outliers3D", "Outliers3D↓"),
+           ("EPE3D_static", "EPE3D static↓"), ("EPE3D_moving", "EPE3D moving↓"),
+           ("seconds_per_scene", "time/scene (s)"))
+
+
+def _cell(row: dict[str, Any], key: str) -> str:
+    v = row.get(key)
+    if v is None:
+        return "–"
+    std = row.get(f"{key}_std")
+    text = f"{v:.4f}" if key != "seconds_per_scene" else f"{v:.3f}"
+    return f"{text} ± {std:.4f}" if std is not None else text
+
+
+def markdown_table(rows: Sequence[dict[str, Any]], title: str | None = None) -> str:
+    """The methods × metrics table (columns absent from every row are left out)."""
+    cols = [(k, h) for k, h in COLUMNS if any(r.get(k) is not None for r in rows)]
+    lines = []
+    if title:
+        lines += [f"### {title}", ""]
+    lines.append("| Method | " + " | ".join(h for _, h in cols) + " |")
+    lines.append("|---|" + "---|" * len(cols))
+    for r in rows:
+        lines.append(f"| {r['method']} | " + " | ".join(_cell(r, k) for k, _ in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_reports(out_dir: Path, rows: Sequence[dict[str, Any]], details: dict[str, Any], title: str) -> Path:
+    """Write ``results.md``, ``results.json`` (rows + details) and ``results.csv``; return the folder."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "results.md").write_text(markdown_table(rows, title))
+    (out_dir / "results.json").write_text(json.dumps({"title": title, "rows": list(rows), **details}, indent=2,
+                                                     default=str) + "\n")
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with (out_dir / "results.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    return out_dir
