@@ -1,0 +1,362 @@
+"""The scene-flow network: HALFlowNet's design (Wang et al., "Hierarchical Attention Learning of Scene
+Flow in 3D Point Clouds") in plain PyTorch, the net the monocular paper trains (DESIGN.md §5).
+
+Data flow (default sizes; every number comes from :class:`HALFlowConfig`)::
+
+    pc1, pc2 (8192) ─ shared set convs ─> L0 2048 (k 32) ─> L1 1024 (k 24) ─> L2 256 (k 16) ─┐
+    pc2 L2 ─ set conv ─> pc2 L3 64 (k 16)                                                       │
+    cost volume L2 (k 32 in pc2, k 4 in pc1) ─ set conv ─> pc1 L3 64 (k 16) ─> L4 16 (k 8)  <───┘
+    L3: set-upconv 16→64, coarse flow (linear head); warp pc1 L3, cost volume (k 6 / k 4), refine
+    L2, L1: set-upconv + 3-NN interpolated flow, warp, cost volume (k 6 / k 4), refine (residual)
+    L0: 3-NN feature propagation of L1's refinement features, MLP, residual flow on the L1 flow
+
+Outputs flows at L0..L3 (2048, 1024, 256, 64 points), finest first, with the indices of those points in
+the input pc1. All positions and flows in metres in the input frame (camera frame of frame 1 in
+monoflow); internally both clouds are shifted by pc1's mean (``center_input``), which does not change
+the flows' frame.
+
+Sampling: ``"fps"`` (farthest point sampling at every level, deterministic) or ``"random"`` — the
+released port's first-N: the input is already a random subset in random order, so each level takes the
+first n points of the level above (deterministic, nested levels; shuffle the input to resample).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+from pipeline.errors import ConfigError, InputError
+from training.knn import BACKENDS
+from training.model.cost_volume import AttentiveCostVolume
+from training.model.flow_head import FlowHead, FlowRefiner
+from training.model.layers import SharedMLP, scaled
+from training.model.set_conv import SetConv
+from training.model.set_upconv import FeaturePropagation, SetUpConv
+from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
+
+N_LEVELS = 5  # L0..L4; flows come out at L0..L3
+
+
+@dataclass
+class HALFlowConfig:
+    """Architecture of :class:`HALFlowNet`.
+
+    n_points: nominal points per input cloud (what the data pipeline samples); the net accepts any
+        N >= level_points[0].
+    level_points / level_k: points and set-conv neighbours at L0..L4.
+    cost_k_pc2 / cost_k_pc1: neighbours in frame 2 (point-to-patch) and frame 1 (patch-to-patch) of
+        the first cost volume (L2); refine_k replaces cost_k_pc2 in the refinement cost volumes.
+    width_scale: multiplies every hidden width (0.25 for fast tests).
+    sampling: "fps" | "random" (first-N, see module docstring).
+    feature_dim: channels of the per-point input features (3 for RGB; 0 for none).
+    knn_backend: "auto" | "kdtree" | "torch" (see training.knn).
+    upconv_k: neighbours of the set-upconv layers (HALFlowNet: 8).
+    set_conv_pooling: "max" (HALFlowNet) | "attentive".
+    batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
+    center_input: shift both clouds by pc1's mean before the net (the released port does).
+    """
+
+    n_points: int = 8192
+    level_points: tuple[int, ...] = (2048, 1024, 256, 64, 16)
+    level_k: tuple[int, ...] = (32, 24, 16, 16, 8)
+    cost_k_pc2: int = 32
+    cost_k_pc1: int = 4
+    refine_k: int = 6
+    width_scale: float = 1.0
+    sampling: str = "fps"
+    feature_dim: int = 3
+    knn_backend: str = "auto"
+    upconv_k: int = 8
+    set_conv_pooling: str = "max"
+    batch_norm: bool = True
+    center_input: bool = True
+
+    def __post_init__(self) -> None:
+        self.level_points = tuple(int(n) for n in self.level_points)
+        self.level_k = tuple(int(k) for k in self.level_k)
+        if len(self.level_points) != N_LEVELS or len(self.level_k) != N_LEVELS:
+            raise ConfigError(
+                f"level_points and level_k need {N_LEVELS} entries, got {self.level_points} and {self.level_k}"
+            )
+        pts = (self.n_points, *self.level_points)
+        if any(a <= b for a, b in zip(pts, pts[1:])) or min(pts) < 1:
+            raise ConfigError(f"n_points and level_points must be positive and strictly decreasing, got {pts}")
+        for name in ("cost_k_pc2", "cost_k_pc1", "refine_k", "upconv_k"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if min(self.level_k) < 1:
+            raise ConfigError(f"level_k must be >= 1, got {self.level_k}")
+        if not self.width_scale > 0:
+            raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
+        if self.sampling not in ("fps", "random"):
+            raise ConfigError(f"sampling must be 'fps' or 'random', got {self.sampling!r}")
+        if self.feature_dim < 0:
+            raise ConfigError(f"feature_dim must be >= 0, got {self.feature_dim}")
+        if self.knn_backend not in BACKENDS:
+            raise ConfigError(f"knn_backend must be one of {BACKENDS}, got {self.knn_backend!r}")
+        if self.set_conv_pooling not in ("max", "attentive"):
+            raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
+
+
+@dataclass
+class Sampling:
+    """Which points each level took, as (B, n_l) int64 indices into the level above (L0: into the input).
+
+    pc1: L0..L4 of frame 1; pc2: L0..L3 of frame 2. Reusing one pass's sampling in another (e.g. the
+    dynamic pass ``net(pc1 + sf_s, pc2)`` after ``net(pc1, pc2)``) makes both predict flow at the same
+    points, which a consistency loss between the passes needs; FPS on a rigidly moved cloud would pick the
+    same points only up to floating-point ties.
+    """
+
+    pc1: list[Tensor]
+    pc2: list[Tensor]
+
+
+@dataclass
+class FlowOutput:
+    """What :meth:`HALFlowNet.forward` returns; every list is finest level first (L0, L1, L2, L3).
+
+    flows: (B, n_l, 3) predicted flow of frame-1 points, metres.
+    indices: (B, n_l) int64 indices of those points in the input pc1 (gather pc1, pixel coordinates,
+        static flow … with them).
+    points: (B, n_l, 3) those pc1 points (= pc1 gathered at indices), input frame.
+    indices2 / points2: the same for the frame-2 points of each level (for losses against pc2).
+    sampling: the sampling decisions of this pass; pass it to another forward to sample the same points.
+    """
+
+    flows: list[Tensor]
+    indices: list[Tensor]
+    points: list[Tensor]
+    indices2: list[Tensor] = field(default_factory=list)
+    points2: list[Tensor] = field(default_factory=list)
+    sampling: Sampling | None = None
+
+
+@dataclass
+class _Pyramid:
+    """One cloud's encoder levels: centred positions, features, indices into the input cloud, and the
+    sample indices into the level above."""
+
+    xyz: list[Tensor]
+    feat: list[Tensor]
+    idx: list[Tensor]
+    samples: list[Tensor]
+
+
+class HALFlowNet(nn.Module):
+    """Hierarchical attention scene-flow net; see the module docstring and :class:`HALFlowConfig`."""
+
+    def __init__(self, config: HALFlowConfig | None = None) -> None:
+        super().__init__()
+        cfg = self.config = config or HALFlowConfig()
+        bn, kb = cfg.batch_norm, cfg.knn_backend
+
+        def w(*widths: int) -> list[int]:
+            return [scaled(c, cfg.width_scale) for c in widths]
+
+        k = cfg.level_k
+        pool = cfg.set_conv_pooling
+        # Encoder, shared by both frames at L0..L2.
+        self.sa0 = SetConv(cfg.feature_dim, w(16, 16, 32), k[0], pool, bn, kb)
+        self.sa1 = SetConv(self.sa0.out_channels, w(32, 32, 64), k[1], pool, bn, kb)
+        self.sa2 = SetConv(self.sa1.out_channels, w(64, 64, 128), k[2], pool, bn, kb)
+        c0, c1, c2 = self.sa0.out_channels, self.sa1.out_channels, self.sa2.out_channels
+        self.sa3_pc2 = SetConv(c2, w(128, 128, 256), k[3], pool, bn, kb)
+        c3 = self.sa3_pc2.out_channels
+
+        # First embedding at L2, then the flow branch down to L4.
+        self.cost_l2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.cost_k_pc2, cfg.cost_k_pc1, bn, kb)
+        self.sa3_flow = SetConv(self.cost_l2.out_channels, w(128, 128, 256), k[3], pool, bn, kb)
+        self.sa4 = SetConv(self.sa3_flow.out_channels, w(256, 256, 512), k[4], pool, bn, kb)
+
+        # L3: coarse flow, then one warping refinement.
+        c3_flow = self.sa3_flow.out_channels
+        self.up3 = SetUpConv(c3_flow, self.sa4.out_channels, cfg.upconv_k, w(256, 256, 512), w(512), bn, kb)
+        self.head3_coarse = FlowHead(self.up3.out_channels)
+        self.cost3 = AttentiveCostVolume(c3, w(512, 256, 256), w(512, 256), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
+        self.refine3 = FlowRefiner(c3_flow, self.cost3.out_channels, self.up3.out_channels, w(512, 256, 256), bn)
+        self.head3 = FlowHead(self.refine3.out_channels)
+
+        # L2 and L1: upsample, warp, cost volume, refine.
+        self.up2 = SetUpConv(c2, self.refine3.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), bn, kb)
+        self.cost2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
+        self.refine2 = FlowRefiner(c2, self.cost2.out_channels, self.up2.out_channels, w(256, 128, 128), bn)
+        self.head2 = FlowHead(self.refine2.out_channels)
+
+        self.up1 = SetUpConv(c1, self.refine2.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), bn, kb)
+        self.cost1 = AttentiveCostVolume(c1, w(128, 64, 64), w(128, 64), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
+        self.refine1 = FlowRefiner(c1, self.cost1.out_channels, self.up1.out_channels, w(256, 128, 128), bn)
+        self.head1 = FlowHead(self.refine1.out_channels)
+
+        # L0: feature propagation of L1's refinement features, residual flow.
+        self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), bn, kb)
+        self.fc0 = SharedMLP(self.fp0.out_channels, w(128), bn)
+        self.head0 = FlowHead(self.fc0.out_channels)
+
+    # ------------------------------------------------------------------ helpers
+
+    def _down(
+        self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """Sample n of ``xyz`` (or take ``given`` indices) and apply a set conv: (centres, features,
+        indices into ``xyz``)."""
+        if given is not None:
+            s = given
+        elif self.config.sampling == "fps":
+            s = farthest_point_sample(xyz, n)
+        else:
+            s = first_n_sample(xyz, n)
+        centres = gather_points(xyz, s)
+        return centres, layer(xyz, feat, centres), s
+
+    def _encode(self, xyz: Tensor, feat: Tensor, given: list[Tensor | None]) -> _Pyramid:
+        """L0..L2 of one cloud (or of both stacked on the batch axis)."""
+        pyr = _Pyramid([], [], [], [])
+        for lvl, layer in enumerate((self.sa0, self.sa1, self.sa2)):
+            n = self.config.level_points[lvl]
+            xyz, feat, s = self._down(layer, xyz, feat, n, given[lvl])
+            pyr.xyz.append(xyz)
+            pyr.feat.append(feat)
+            pyr.samples.append(s)
+            pyr.idx.append(s if not pyr.idx else pyr.idx[-1].gather(1, s))
+        return pyr
+
+    def _check_sampling(self, sampling: Sampling, pc1: Tensor, pc2: Tensor) -> None:
+        where, pts = "HALFlowNet", self.config.level_points
+        clouds = (("pc1", sampling.pc1, pc1.shape[1], 5), ("pc2", sampling.pc2, pc2.shape[1], 4))
+        for name, lists, n_in, levels in clouds:
+            if len(lists) != levels:
+                raise InputError(where, f"sampling.{name} needs {levels} levels, got {len(lists)}")
+            sizes = (n_in, *pts)
+            for lvl, s in enumerate(lists):
+                want = (pc1.shape[0], pts[lvl])
+                if not isinstance(s, Tensor) or tuple(s.shape) != want or s.dtype != torch.int64:
+                    got = (tuple(s.shape), s.dtype) if isinstance(s, Tensor) else type(s).__name__
+                    raise InputError(where, f"sampling.{name}[{lvl}] must be int64 of shape {want}, got {got}")
+                if s.device != pc1.device or s.min() < 0 or s.max() >= sizes[lvl]:
+                    raise InputError(where, f"sampling.{name}[{lvl}] must index [0, {sizes[lvl]}) on {pc1.device}")
+
+    def _check(self, pc1: Tensor, pc2: Tensor, feat1: Tensor | None, feat2: Tensor | None) -> tuple[Tensor, Tensor]:
+        cfg, where = self.config, "HALFlowNet"
+        for name, pc in (("pc1", pc1), ("pc2", pc2)):
+            if not isinstance(pc, Tensor) or pc.ndim != 3 or pc.shape[2] != 3:
+                shape = tuple(pc.shape) if isinstance(pc, Tensor) else type(pc).__name__
+                raise InputError(where, f"{name} must be a (B, N, 3) tensor, got {shape}")
+            if not pc.is_floating_point():
+                raise InputError(where, f"{name} must be floating point, got {pc.dtype}")
+            if pc.shape[1] < cfg.level_points[0]:
+                raise InputError(
+                    where, f"{name} has {pc.shape[1]} points, fewer than level_points[0] = {cfg.level_points[0]}"
+                )
+        if pc1.shape[0] != pc2.shape[0] or pc1.device != pc2.device:
+            raise InputError(
+                where,
+                f"pc1 {tuple(pc1.shape)} on {pc1.device} and pc2 {tuple(pc2.shape)} on {pc2.device} "
+                "differ in batch size or device",
+            )
+        feats = []
+        for name, pc, f in (("feat1", pc1, feat1), ("feat2", pc2, feat2)):
+            if f is None:
+                f = pc.new_zeros(pc.shape[0], pc.shape[1], cfg.feature_dim)
+            elif not isinstance(f, Tensor) or f.shape != (pc.shape[0], pc.shape[1], cfg.feature_dim):
+                shape = tuple(f.shape) if isinstance(f, Tensor) else type(f).__name__
+                want = (pc.shape[0], pc.shape[1], cfg.feature_dim)
+                raise InputError(where, f"{name} must have shape {want} (feature_dim={cfg.feature_dim}), got {shape}")
+            feats.append(f.to(pc.dtype))
+        return feats[0], feats[1]
+
+    # ------------------------------------------------------------------ forward
+
+    def forward(
+        self,
+        pc1: Tensor,
+        pc2: Tensor,
+        feat1: Tensor | None = None,
+        feat2: Tensor | None = None,
+        sampling: Sampling | None = None,
+    ) -> FlowOutput:
+        """Scene flow of pc1 towards pc2.
+
+        Args:
+            pc1, pc2: (B, N1, 3), (B, N2, 3) points in metres, one common frame (camera frame of frame 1).
+            feat1, feat2: (B, N, feature_dim) per-point features (RGB), or None for zeros.
+            sampling: reuse another pass's :attr:`FlowOutput.sampling` instead of sampling anew.
+        Returns:
+            :class:`FlowOutput` with flows at L0..L3 (default 2048, 1024, 256, 64 points).
+        """
+        feat1, feat2 = self._check(pc1, pc2, feat1, feat2)
+        if sampling is not None:
+            self._check_sampling(sampling, pc1, pc2)
+        given1: list[Tensor | None] = [None] * 5 if sampling is None else list(sampling.pc1)
+        given2: list[Tensor | None] = [None] * 4 if sampling is None else list(sampling.pc2)
+        cfg = self.config
+        centre = pc1.mean(dim=1, keepdim=True) if cfg.center_input else pc1.new_zeros(pc1.shape[0], 1, 3)
+        x1, x2 = pc1 - centre, pc2 - centre
+
+        if pc1.shape[1] == pc2.shape[1]:  # one pass over both clouds: shared weights, half the loops
+            given = [None if a is None else torch.cat([a, b]) for a, b in zip(given1, given2)]
+            both = self._encode(torch.cat([x1, x2]), torch.cat([feat1, feat2]), given)
+            B = pc1.shape[0]
+            parts = (both.xyz, both.feat, both.idx, both.samples)
+            p1 = _Pyramid(*[[t[:B] for t in ts] for ts in parts])
+            p2 = _Pyramid(*[[t[B:] for t in ts] for ts in parts])
+        else:
+            p1, p2 = self._encode(x1, feat1, given1), self._encode(x2, feat2, given2)
+
+        n3, n4 = cfg.level_points[3], cfg.level_points[4]
+        xyz2_3, feat2_3, s = self._down(self.sa3_pc2, p2.xyz[2], p2.feat[2], n3, given2[3])
+        p2.xyz.append(xyz2_3)
+        p2.feat.append(feat2_3)
+        p2.samples.append(s)
+        p2.idx.append(p2.idx[2].gather(1, s))
+
+        # First embedding at L2, flow branch to L3 and L4.
+        emb = self.cost_l2(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])
+        xyz1_3, feat1_3, s = self._down(self.sa3_flow, p1.xyz[2], emb, n3, given1[3])
+        p1.xyz.append(xyz1_3)
+        p1.feat.append(feat1_3)
+        p1.samples.append(s)
+        p1.idx.append(p1.idx[2].gather(1, s))
+        xyz1_4, feat1_4, s = self._down(self.sa4, xyz1_3, feat1_3, n4, given1[4])
+        p1.samples.append(s)
+
+        # L3: coarse flow from the upconv features, warp, cost volume, residual refinement.
+        up = self.up3(xyz1_3, xyz1_4, feat1_3, feat1_4)
+        coarse = self.head3_coarse(up)
+        cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
+        hidden = self.refine3(coarse, feat1_3, cost, up)
+        flow = coarse + self.head3(hidden)
+        flows = [flow]
+
+        # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
+        for lvl, upconv, cv, refiner, head in ((2, self.up2, self.cost2, self.refine2, self.head2),
+                                                (1, self.up1, self.cost1, self.refine1, self.head1)):
+            xyz, feat = p1.xyz[lvl], p1.feat[lvl]
+            up = upconv(xyz, p1.xyz[lvl + 1], feat, hidden)
+            coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
+            cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
+            hidden = refiner(coarse, feat, cost, up)
+            flow = coarse + head(hidden)
+            flows.insert(0, flow)
+
+        # L0: propagate L1's refinement features, residual on the interpolated L1 flow.
+        hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
+        coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
+        flows.insert(0, coarse + self.head0(hidden))
+
+        idx1, idx2 = p1.idx[:4], p2.idx[:4]
+        return FlowOutput(
+            flows=flows,
+            indices=idx1,
+            points=[gather_points(pc1, i) for i in idx1],
+            indices2=idx2,
+            points2=[gather_points(pc2, i) for i in idx2],
+            sampling=Sampling(pc1=p1.samples, pc2=p2.samples),
+        )
+
+
+def count_parameters(net: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in net.parameters() if p.requires_grad)

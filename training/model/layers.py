@@ -1,0 +1,51 @@
+"""The building block of every HALFlowNet module: a shared MLP applied to the last (channel) axis.
+
+Channels-last tensors (..., C) of any rank — per point (B, M, C) or per neighbour (B, M, k, C) — go
+through ``Linear → BatchNorm → ReLU`` layers; batch norm normalises over every leading position, the same
+statistics a 1×1 convolution with ``BatchNorm2d`` would use. ``last_linear=True`` leaves the last layer
+without norm and activation (for attention logits and flow heads).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+
+def scaled(width: int, scale: float) -> int:
+    """A layer width multiplied by the config's ``width_scale`` (at least 1)."""
+    return max(1, int(round(width * scale)))
+
+
+class SharedMLP(nn.Module):
+    """Pointwise MLP over the last axis: ``in_channels → widths[0] → … → widths[-1]``."""
+
+    def __init__(
+        self, in_channels: int, widths: Sequence[int], batch_norm: bool = True, last_linear: bool = False
+    ) -> None:
+        super().__init__()
+        self.in_channels = in_channels
+        self.out_channels = widths[-1] if widths else in_channels
+        self.linears = nn.ModuleList()
+        self.norms = nn.ModuleList()
+        self.activate: list[bool] = []
+        c = in_channels
+        for i, w in enumerate(widths):
+            plain = last_linear and i == len(widths) - 1
+            self.linears.append(nn.Linear(c, w, bias=plain or not batch_norm))
+            self.norms.append(nn.BatchNorm1d(w) if batch_norm and not plain else nn.Identity())
+            self.activate.append(not plain)
+            c = w
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(..., in_channels) -> (..., out_channels)."""
+        for linear, norm, act in zip(self.linears, self.norms, self.activate):
+            x = linear(x)
+            if not isinstance(norm, nn.Identity):
+                shape = x.shape
+                x = norm(x.reshape(-1, shape[-1])).view(shape)
+            if act:
+                x = torch.relu(x)
+        return x
