@@ -1,0 +1,143 @@
+"""Where things live in a cache root, how it is named, and how its JSON files are written.
+
+A cache root is ``<out>/<dataset>/<config-hash>/`` (:func:`cache_root`) holding
+
+* ``cache.json``    — header: schema version, config, config hash, source (written by the first writer);
+* ``manifest.json`` — the index a reader needs (written last, by finalize or merge);
+* ``blocks/<sequence>/<block:05d>/`` — one finished zarr group per block; a block being written lives in
+  ``blocks/<sequence>/<block:05d>.tmp-<pid>-<host>/`` until it is complete and renamed into place.
+
+JSON is written canonically (sorted keys, fixed separators) and atomically (temp file + ``os.replace``), so
+a resumed run produces byte-identical files.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import socket
+import subprocess
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import ConfigError
+
+SCHEMA_VERSION = 1
+FORMAT_NAME = "monoflow-stage-one-cache"
+HEADER_NAME = "cache.json"
+MANIFEST_NAME = "manifest.json"
+BLOCKS_DIR = "blocks"
+MAX_BLOCKS_PER_SEQUENCE = 100_000  # block directories are named with 5 digits
+
+_SEQUENCE_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+_BLOCK_RE = re.compile(r"^\d{5}$")
+_TMP_RE = re.compile(r"^(?P<stem>.+)\.tmp-(?P<pid>\d+)-(?P<host>.+)$")
+
+
+def canonical_json(obj: Any) -> str:
+    """The canonical JSON text of ``obj``: sorted keys, no whitespace, no NaN/inf."""
+    try:
+        return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"cache config/source must be plain JSON data: {exc}") from None
+
+
+def config_hash(config: dict) -> str:
+    """Short (12 hex digits) sha256 of the canonical JSON of ``config``; names the cache directory."""
+    return hashlib.sha256(canonical_json(config).encode("ascii")).hexdigest()[:12]
+
+
+def cache_root(out: str | os.PathLike[str], dataset: str, config: dict) -> Path:
+    """``<out>/<dataset>/<config-hash>/`` for a stage-one config."""
+    check_name(dataset, "dataset")
+    return Path(out) / dataset / config_hash(config)
+
+
+def check_name(name: str, what: str = "sequence") -> str:
+    """A sequence or dataset name that is safe as one path component (letters, digits, ``_ . -``)."""
+    if not isinstance(name, str) or not _SEQUENCE_RE.match(name) or ".tmp-" in name:
+        raise ValueError(f"{what} name {name!r} must be letters, digits, '_', '.', '-' (not starting with '.')")
+    return name
+
+
+def check_block_index(block_index: int) -> int:
+    if isinstance(block_index, bool) or not isinstance(block_index, int) or not 0 <= block_index < MAX_BLOCKS_PER_SEQUENCE:
+        raise ValueError(f"block index {block_index!r} must be an int in [0, {MAX_BLOCKS_PER_SEQUENCE})")
+    return block_index
+
+
+def block_relpath(sequence: str, block_index: int) -> str:
+    """``blocks/<sequence>/<block:05d>`` (POSIX separators, as stored in the manifest)."""
+    return f"{BLOCKS_DIR}/{check_name(sequence)}/{check_block_index(block_index):05d}"
+
+
+def block_dir(root: Path, sequence: str, block_index: int) -> Path:
+    return Path(root) / block_relpath(sequence, block_index)
+
+
+def host_name() -> str:
+    """This machine's name, reduced to path-safe characters (it goes into temp-directory names)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname()) or "host"
+
+
+def tmp_suffix() -> str:
+    """``.tmp-<pid>-<host>``: marks a directory or file being written by this process."""
+    return f".tmp-{os.getpid()}-{host_name()}"
+
+
+def parse_tmp_name(name: str) -> tuple[str, int, str] | None:
+    """(stem, pid, host) of a temp name made with :func:`tmp_suffix`, or None for any other name."""
+    m = _TMP_RE.match(name)
+    return (m["stem"], int(m["pid"]), m["host"]) if m else None
+
+
+def is_block_name(name: str) -> bool:
+    return bool(_BLOCK_RE.match(name))
+
+
+def write_json_atomic(path: Path, obj: Any) -> None:
+    """Write ``obj`` as indented canonical JSON via a temp file in the same folder + fsync + ``os.replace``."""
+    path = Path(path)
+    text = json.dumps(obj, sort_keys=True, indent=1, ensure_ascii=True, allow_nan=False) + "\n"
+    tmp = path.with_name(path.name + tmp_suffix())
+    try:
+        with open(tmp, "w", encoding="ascii") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    fsync_dir(path.parent)
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a rename or a new entry in ``path`` durable (no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def code_version() -> dict[str, str | None]:
+    """``{"monoflow": package version, "git": HEAD revision of the source checkout or None}``."""
+    import pipeline
+
+    rev = None
+    src = Path(pipeline.__file__).resolve().parent.parent
+    if (src / ".git").exists():
+        try:
+            out = subprocess.run(["git", "-C", str(src), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+            rev = out.stdout.strip() or None if out.returncode == 0 else None
+        except (OSError, subprocess.SubprocessError):
+            rev = None
+    return {"monoflow": pipeline.__version__, "git": rev}
