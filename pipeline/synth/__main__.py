@@ -1,0 +1,3 @@
+from pipeline.synth.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,103 @@
+"""The scene-flow test split, in the two layouts the community's KITTI test sets use.
+
+* FlowNet3D ``kitti_rm_ground``: ``flownet3d/XXXXXX.npz`` with ``pos1``, ``pos2``, ``gt`` (N, 3) in
+  LiDAR-like axes — stored (x, y, z) = (cam_z, −cam_x, −cam_y) — ground removed, camera z < 35 m;
+  ``pos2`` is the next scan (camera-(t+1) frame), not pos1 moved.
+* HPLFlowNet ``KITTI_processed_occ_final``: ``hplflownet/XXXXXX/pc1.npy``, ``pc2.npy`` in axes
+  (−cam_x, −cam_y, cam_z), ``pc2 = pc1 + flow`` point to point; ground kept (its reader drops stored
+  y < −1.4 and keeps z < 35).
+
+Both come from the LiDAR scan at t, restricted to points that project into image_2 at t; the flow is
+the generator's ground truth (camera-(t+1) position minus camera-t position, metres).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.synth.writer import frame_name, save_npy, save_npz
+
+MAX_Z = 35.0
+
+
+def camera_to_flownet3d(p: np.ndarray) -> np.ndarray:
+    """Camera (x right, y down, z fwd) → FlowNet3D axes (x fwd, y left, z up): (z, −x, −y)."""
+    return np.stack([p[..., 2], -p[..., 0], -p[..., 1]], axis=-1)
+
+
+def flownet3d_to_camera(q: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`camera_to_flownet3d`: camera (x, y, z) = (−q_y, −q_z, q_x)."""
+    return np.stack([-q[..., 1], -q[..., 2], q[..., 0]], axis=-1)
+
+
+def camera_to_hplflownet(p: np.ndarray) -> np.ndarray:
+    """Camera → HPLFlowNet axes (−x, −y, z) (its own inverse)."""
+    return np.stack([-p[..., 0], -p[..., 1], p[..., 2]], axis=-1)
+
+
+hplflownet_to_camera = camera_to_hplflownet
+
+
+@dataclass
+class ScanGT:
+    """A scan's returns inside image_2's field of view at t, camera-t frame (metres).
+
+    ``flow`` (N, 3) is None for a sequence's last frame (no t+1); ``ground``: road, kerb or pavement.
+    """
+
+    points: np.ndarray
+    flow: np.ndarray | None
+    moving: np.ndarray
+    ground: np.ndarray
+
+
+def write_pair(root: Path, index: int, scan_t: ScanGT, scan_t1: ScanGT) -> tuple[int, int]:
+    """Write pair ``index`` (t → t+1) in both layouts; return (FlowNet3D N1, HPLFlowNet N)."""
+    name = frame_name(index)
+    keep1 = ~scan_t.ground & (scan_t.points[:, 2] < MAX_Z)
+    keep2 = ~scan_t1.ground & (scan_t1.points[:, 2] < MAX_Z)
+    save_npz(
+        root / "flownet3d" / f"{name}.npz",
+        pos1=camera_to_flownet3d(scan_t.points[keep1]).astype(np.float32),
+        pos2=camera_to_flownet3d(scan_t1.points[keep2]).astype(np.float32),
+        gt=camera_to_flownet3d(scan_t.flow[keep1]).astype(np.float32),
+        moving=scan_t.moving[keep1],
+    )
+    pc1 = camera_to_hplflownet(scan_t.points)
+    pc2 = camera_to_hplflownet(scan_t.points + scan_t.flow)
+    d = root / "hplflownet" / name
+    save_npy(d / "pc1.npy", pc1.astype(np.float32))
+    save_npy(d / "pc2.npy", pc2.astype(np.float32))
+    save_npy(d / "moving.npy", scan_t.moving)
+    return int(keep1.sum()), len(pc1)
+
+
+README = """Scene-flow test split of the monoflow synthetic world (sequence {seq}, {pairs} pairs t -> t+1).
+
+Source: the simulated HDL-64E scan at frame t (sequences/{seq}/velodyne), restricted to the points
+that project inside image_2 at t. Ground truth flow = position of the same surface point at t+1 in
+camera-(t+1) coordinates minus its position in camera-t coordinates (metres), i.e. it includes the
+ego-motion, as KITTI scene flow does. Camera = image_2 (x right, y down, z forward).
+
+flownet3d/XXXXXX.npz   (as FlowNet3D's kitti_rm_ground)
+  pos1 (N1,3) float32, gt (N1,3) float32, pos2 (N2,3) float32, moving (N1,) bool
+  axes: stored (x, y, z) = (cam_z, -cam_x, -cam_y)  <=>  camera (x, y, z) = (-y, -z, x)
+  ground (road, kerb, pavement) removed using the generator's labels; camera z < {max_z} m.
+  pos2 = the scan at t+1 (camera-(t+1) frame, same filters), NOT pos1 + gt.
+
+hplflownet/XXXXXX/pc1.npy, pc2.npy, moving.npy   (as HPLFlowNet's KITTI_processed_occ_final)
+  pc1 (N,3) float32, pc2 = pc1 + flow (point to point), moving (N,) bool
+  axes: stored (x, y, z) = (-cam_x, -cam_y, cam_z)
+  ground NOT removed and no depth limit: the reader removes stored y < -1.4 (both clouds) and
+  keeps z < {max_z}.
+
+moving = the point lies on an independently moving car.
+"""
+
+
+def write_readme(root: Path, seq: str, pairs: int) -> None:
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "README.txt").write_text(README.format(seq=seq, pairs=pairs, max_z=MAX_Z), encoding="utf-8")
