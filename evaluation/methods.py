@@ -1,20 +1,24 @@
 """Everything that predicts flow, behind one interface, so that each method sees the same points.
 
 A method is called as ``method(pc1, pc2, color1, color2) -> flow`` on the *sampled* clouds of a scene
-(camera frames of frames 1 and 2, metres; colours RGB in [0, 1] or None) and returns the flow of every
-pc1 point, (N, 3) float32 metres. The trained net predicts at its level-0 points and its flow is spread
-to the other sampled points by 3-NN inverse-distance interpolation (exact at the level-0 points).
+(camera frames of frames 1 and 2, metres; colours RGB in [0, 1] or None; read-only arrays) and returns
+the flow of every pc1 point, (N, 3) float32 metres. A method with ``needs_pose = True`` is also given
+``pose=`` the scene's ``T_{1→2}`` (4×4, or None when the split has none).
+
+The trained net predicts at its level-0 points; its flow is spread to the other sampled points by 3-NN
+inverse-distance interpolation, which is exact at the level-0 points (the points the paper protocol
+scores).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputError
 
 
 class FlowMethod(Protocol):
@@ -26,20 +30,40 @@ class FlowMethod(Protocol):
 
 @dataclass
 class BaselineMethod:
-    """Adapts a ``baseline(pc1, pc2) -> flow`` (zero, ICP, FGR) to :class:`FlowMethod`."""
+    """Adapts a ``baseline(pc1, pc2) -> flow`` (zero, ICP, FGR) to :class:`FlowMethod` (colours unused)."""
 
-    baseline: object
+    baseline: Any
+    name: str = ""
 
-    @property
-    def name(self) -> str:
-        return self.baseline.name
+    def __post_init__(self) -> None:
+        self.name = self.name or self.baseline.name
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         return np.asarray(self.baseline(pc1, pc2), dtype=np.float32)
 
 
+@dataclass
+class StaticPoseMethod:
+    """The pose-only static flow ``(R p + t) − p`` of the scene's own ``T_{1→2}`` (needs a split with poses)."""
+
+    name: str = "static-pose"
+    needs_pose: bool = True
+
+    def __call__(self, pc1, pc2, color1=None, color2=None, pose: np.ndarray | None = None) -> np.ndarray:
+        from evaluation.baselines.static import static_flow
+
+        if pose is None:
+            raise ConfigError("the 'static' baseline needs a split with poses (T_1→2 per scene); this one has none")
+        return static_flow(pc1, pose)
+
+
 class NetMethod:
-    """A scene-flow net restored from a ``monoflow-train`` checkpoint (``latest.pt``)."""
+    """A scene-flow net restored from a ``monoflow-train`` checkpoint (``latest.pt``, kind ``"flow"``).
+
+    The architecture comes from the checkpoint's ``config["model"]`` (HALFlowConfig fields); colours are
+    the per-point features when the run trained with ``config["data"]["colour_features"]`` and the split
+    has them, else zeros (:attr:`uses_colour`).
+    """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None) -> None:
         import torch
@@ -48,23 +72,37 @@ class NetMethod:
         from training.runtime.checkpoints import load_checkpoint
         from training.runtime.device import resolve_device
 
-        ckpt = load_checkpoint(checkpoint, kind="flow")
-        cfg = ckpt["config"]
-        self.config = HALFlowConfig(**cfg["model"])
-        self.colour = bool(cfg.get("data", {}).get("colour_features", True))
+        path = Path(checkpoint)
+        ckpt = load_checkpoint(path, kind="flow")
+        try:
+            cfg = ckpt["config"]
+            self.config = HALFlowConfig(**cfg["model"])
+            state = ckpt["model"]
+        except (KeyError, TypeError) as exc:
+            raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
+        except ConfigError as exc:
+            raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
+        self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)
-        self.net = HALFlowNet(self.config).to(self.device).eval()
-        self.net.load_state_dict(ckpt["model"])
-        self.step = int(ckpt["step"])
-        self.name = name or f"ours ({Path(checkpoint).parent.name}, step {self.step})"
+        self.net = HALFlowNet(self.config)
+        try:
+            self.net.load_state_dict(state)
+        except RuntimeError as exc:
+            raise InputError(path, f"weights do not match the model config ({str(exc).splitlines()[0]})") from None
+        self.net = self.net.to(self.device).eval()
+        self.step = int(ckpt.get("step", 0))
+        self.checkpoint = path
+        self.name = name or f"ours ({path.parent.name}, step {self.step})"
         self._torch = torch
 
     @property
     def n_points(self) -> int:
+        """Points per cloud the net was trained on (the protocol's default ``n_points``)."""
         return self.config.n_points
 
     @property
     def n_score(self) -> int:
+        """Level-0 points (the paper protocol's default ``n_score``)."""
         return self.config.level_points[0]
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
@@ -72,27 +110,30 @@ class NetMethod:
         from training.pointops import three_nn_interpolate
 
         def t(x):
-            return torch.as_tensor(np.asarray(x, np.float32), device=self.device)[None]
+            return torch.tensor(np.asarray(x, dtype=np.float32), device=self.device)[None]
 
-        f1 = t(color1) if (self.colour and color1 is not None) else t(np.zeros_like(pc1))
-        f2 = t(color2) if (self.colour and color2 is not None) else t(np.zeros_like(pc2))
+        use = self.uses_colour and color1 is not None and color2 is not None
+        f1, f2 = (t(color1), t(color2)) if use else (None, None)  # None: the net's zero features
         with torch.no_grad():
-            out = self.net(t(pc1), t(pc2), f1, f2)
-            flow = three_nn_interpolate(t(pc1), out.points[0], out.flows[0].float())
+            p1 = t(pc1)
+            out = self.net(p1, t(pc2), f1, f2)
+            flow = three_nn_interpolate(p1, out.points[0], out.flows[0].float())
         return flow[0].cpu().numpy().astype(np.float32)
 
 
-BASELINES = ("zero", "icp-p2p", "icp-p2l", "fgr")
+BASELINES = ("zero", "static", "icp-p2p", "icp-p2l", "fgr")
 
 
-def make_baseline(name: str) -> BaselineMethod:
-    """One of :data:`BASELINES`, with its default settings."""
+def make_baseline(name: str) -> FlowMethod:
+    """One of :data:`BASELINES`, with its default settings (``static`` needs a split with poses)."""
     from evaluation.baselines.fgr import FGRBaseline
     from evaluation.baselines.icp import ICPBaseline, ICPConfig
     from evaluation.baselines.zero import ZeroFlowBaseline
 
     if name == "zero":
         return BaselineMethod(ZeroFlowBaseline())
+    if name == "static":
+        return StaticPoseMethod()
     if name == "icp-p2p":
         return BaselineMethod(ICPBaseline(ICPConfig(method="point_to_point")))
     if name == "icp-p2l":

@@ -34,12 +34,23 @@ def markdown_table(rows: Sequence[dict[str, Any]], title: str | None = None) -> 
     return "\n".join(lines) + "\n"
 
 
+def provenance() -> dict[str, Any]:
+    """Package versions, git revision and command line, saved with every report (DESIGN §1)."""
+    import sys
+
+    from training.runtime.rundir import git_revision, package_versions
+
+    return {"versions": package_versions(), "git": git_revision(), "argv": sys.argv}
+
+
 def write_reports(out_dir: Path, rows: Sequence[dict[str, Any]], details: dict[str, Any], title: str) -> Path:
-    """Write ``results.md``, ``results.json`` (rows + details) and ``results.csv``; return the folder."""
+    """Write ``results.md``, ``results.json`` (title, rows, details, provenance) and ``results.csv`` (the
+    rows); return the folder."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "results.md").write_text(markdown_table(rows, title))
-    (out_dir / "results.json").write_text(json.dumps({"title": title, "rows": list(rows), **details}, indent=2,
-                                                     default=str) + "\n")
+    payload = {"title": title, "rows": list(rows), **details, **provenance()}
+    (out_dir / "results.json").write_text(json.dumps(payload, indent=2, default=str) + "\n")
     keys: list[str] = []
     for r in rows:
         keys += [k for k in r if k not in keys]

@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args) -> int:
     import torch
 
-    from evaluation.ablations import level_points_for
+    from evaluation.ablations import AblationConfig, level_points_for, training_sequences
     from pipeline.preprocess import PreprocessConfig, run_preprocess
     from pipeline.synth.config import SynthConfig
     from pipeline.synth.generator import generate
@@ -56,6 +56,7 @@ def _run(args) -> int:
     print("\n".join(generate(synth, world, workers=2).lines()), flush=True)
 
     size = f"{synth.width}x{synth.height}"
+    train_seqs = training_sequences(AblationConfig(world=str(world)))  # never the test sequence
     if args.depth == "learned":
         from training.depth.presets import demo_config
         from training.depth.trainer import train_depth
@@ -64,11 +65,14 @@ def _run(args) -> int:
         dcfg = demo_config(root=str(world), run_dir=str(out / "depth_run"), seed=args.seed)
         ckpts = train_depth(dcfg)
         pcfg = PreprocessConfig(root=str(world), depth="net", pose="net", depth_checkpoint=str(ckpts["depth"]),
-                                pose_checkpoint=str(ckpts["pose"]), size=size, out=str(out / "cache"))
+                                pose_checkpoint=str(ckpts["pose"]), size=size, out=str(out / "cache"),
+                                sequences=train_seqs)
         pcfg.scale.mode = "camera-height"
     else:
-        pcfg = PreprocessConfig(root=str(world), depth="gt", pose="gt", size=size, out=str(out / "cache"))
-    _say(f"2/4 stage one: depth from {pcfg.depth}, pose from {pcfg.pose}, scale {pcfg.scale.mode}")
+        pcfg = PreprocessConfig(root=str(world), depth="gt", pose="gt", size=size, out=str(out / "cache"),
+                                sequences=train_seqs)
+    _say(f"2/4 stage one on training sequences {', '.join(train_seqs)}: depth from {pcfg.depth}, "
+         f"pose from {pcfg.pose}, scale {pcfg.scale.mode}")
     summary = run_preprocess(pcfg)
     print(summary.text(), flush=True)
 
