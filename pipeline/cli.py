@@ -1,0 +1,99 @@
+"""``monoflow-preprocess``: stage one from the command line (also ``python -m pipeline``).
+
+Usage::
+
+    monoflow-preprocess [run] --root DATA --sequences 00,01 --depth net --depth_checkpoint dispnet.pth.tar \\
+        --pose net --pose_checkpoint posenet.pth.tar --scale.mode camera-height --out cache [--config run.toml]
+    monoflow-preprocess merge CACHE_ROOT     # write manifest.json once every shard's blocks are present
+    monoflow-preprocess verify CACHE_ROOT    # decode every block, check it against the manifest
+
+``run`` is the default sub-command. Options come from ``--config FILE.toml`` (top-level keys and
+``[filters]`` / ``[scale]`` tables) overridden by flags; every option is listed by ``run --help``.
+Bad input ends with one line ``error: <file>: <problem>`` and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from pipeline.errors import run_cli
+
+COMMANDS = ("run", "merge", "verify")
+
+
+def _run_parser() -> argparse.ArgumentParser:
+    from pipeline.options import add_dataclass_args
+    from pipeline.preprocess import PreprocessConfig
+
+    p = argparse.ArgumentParser(
+        prog="monoflow-preprocess run",
+        description="Stage one: depth, pose, scale, filters -> zarr cache (cache/<dataset>/<config-hash>/).",
+    )
+    p.add_argument("--config", metavar="FILE.toml", default=None, help="options file; flags override it")
+    add_dataclass_args(p, PreprocessConfig)
+    return p
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="monoflow-preprocess",
+        description="Stage one of monoflow: monocular frames -> filtered coloured point clouds + static flow (cache).",
+        epilog="'run' is the default: `monoflow-preprocess --root DATA ...` runs stage one. "
+        "See `monoflow-preprocess run --help` for its options.",
+    )
+    sub = p.add_subparsers(dest="command", metavar="{run,merge,verify}")
+    sub.add_parser("run", help="run stage one (default)", add_help=False)
+    m = sub.add_parser("merge", help="write a cache's manifest from its finished blocks (after sharded runs)")
+    m.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
+    v = sub.add_parser("verify", help="decode and check every block of a finished cache")
+    v.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
+    return p
+
+
+def _cmd_run(argv: list[str]) -> int:
+    from pipeline.options import build_config
+    from pipeline.preprocess import PreprocessConfig, run_preprocess
+
+    args = _run_parser().parse_args(argv)
+    config = build_config(PreprocessConfig, args, args.config)
+    summary = run_preprocess(config)
+    print(summary.text())
+    return 0
+
+
+def _cmd_merge(root: str) -> int:
+    from pipeline.cache.manifest import merge
+
+    manifest = merge(root)
+    print(f"{root}: manifest written, {manifest['num_pairs']} pairs in {manifest['num_blocks']} blocks")
+    return 0
+
+
+def _cmd_verify(root: str) -> int:
+    from pipeline.cache.verify import verify
+
+    report = verify(root)
+    print(report.summary())
+    return 0 if report.ok else 1
+
+
+def _main(argv: list[str] | None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in COMMANDS + ("-h", "--help"):
+        argv = ["run"] + argv
+    if argv[0] == "run":
+        return _cmd_run(argv[1:])
+    args = _top_parser().parse_args(argv)
+    if args.command == "merge":
+        return _cmd_merge(args.cache_root)
+    return _cmd_verify(args.cache_root)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``monoflow-preprocess``; returns the exit code (2 on bad input)."""
+    return run_cli(_main, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
