@@ -47,7 +47,17 @@ class OptimConfig:
 
 @dataclass
 class TrainConfig:
-    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` pairs)."""
+    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` pairs).
+
+    epochs: when > 0, overrides ``steps`` (ceil(epochs · training pairs / batch size)).
+    threads: torch intra-op threads of each training process (0 = leave torch's default); on a small
+        machine with loader workers, fewer threads than cores avoids oversubscription.
+    sync_bn: under DDP, batch norm uses the statistics of the global batch (so P processes with a global
+        batch B train like one process with B); false = per-process statistics, as plain DDP does.
+    deterministic: ``torch.use_deterministic_algorithms`` (warn only); on the CPU a run is repeatable
+        with a fixed ``threads`` either way.
+    log_every / val_every / ckpt_every: in steps; the last step always validates and checkpoints.
+    """
 
     cache: str = "cache/synthetic"
     run_dir: str = "runs/flow"
@@ -55,7 +65,9 @@ class TrainConfig:
     epochs: float = 0.0
     seed: int = 0
     device: str = "auto"
+    threads: int = 0
     amp: bool = False
+    sync_bn: bool = True
     deterministic: bool = False
     log_every: int = 10
     val_every: int = 100

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from pipeline import geometry
+from pipeline.errors import ConfigError, InputError
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -61,9 +62,7 @@ class FlowBatch:
 
 
 def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
-    """``n_want`` indices into ``n_have`` points: without replacement when possible, else all + repeats."""
-    if n_have <= 0:
-        raise ValueError("a cloud in the cache is empty")
+    """``n_want`` indices into ``n_have`` (> 0) points: without replacement when possible, else all + repeats."""
     if n_have >= n_want:
         return rng.choice(n_have, size=n_want, replace=False)
     extra = rng.choice(n_have, size=n_want - n_have, replace=True)
@@ -106,6 +105,9 @@ class PairDataset(torch.utils.data.Dataset):
     def __getitem__(self, pos: int) -> dict[str, np.ndarray]:
         i = self.indices[pos]
         s = self.reader[i]
+        if len(s.pc1) == 0 or len(s.pc2) == 0:
+            raise InputError(getattr(self.reader, "root", "cache"), f"pair {i} has an empty cloud "
+                             f"({len(s.pc1)} frame-t, {len(s.pc2)} frame-t+1 points)")
         rng = np.random.default_rng([self.seed, self.epoch - _VAL_EPOCH, i])  # validation draws use tag 0
         c1 = _choose(rng, len(s.pc1), self.n_points)
         c2 = _choose(rng, len(s.pc2), self.n_points)
@@ -130,8 +132,29 @@ class PairDataset(torch.utils.data.Dataset):
         return out
 
 
-def collate(samples: list[dict[str, np.ndarray]]) -> FlowBatch:
-    """Stack samples into a :class:`FlowBatch` (optional fields only when every sample has them)."""
+@dataclass
+class LoadFailure:
+    """A sample that could not be read, carried out of a DataLoader worker intact.
+
+    DataLoader re-raises a worker's exception as a RuntimeError holding a traceback (it cannot rebuild an
+    :class:`InputError`), which would turn "file: problem" into a wall of text; so the worker returns this
+    and the training process raises :meth:`error`.
+    """
+
+    path: str
+    problem: str
+
+    def error(self) -> InputError:
+        return InputError(self.path, self.problem)
+
+
+def collate(samples: list) -> FlowBatch | LoadFailure:
+    """Stack samples into a :class:`FlowBatch` (optional fields only when every sample has them); the first
+    :class:`LoadFailure` among them, if any, instead."""
+    for s in samples:
+        if isinstance(s, LoadFailure):
+            return s
+
     def stack(key: str) -> Tensor | None:
         if not all(key in s for s in samples):
             return None
@@ -140,6 +163,16 @@ def collate(samples: list[dict[str, np.ndarray]]) -> FlowBatch:
     return FlowBatch(pc1=stack("pc1"), pc2=stack("pc2"), feat1=stack("feat1"), feat2=stack("feat2"),
                      static_flow=stack("static_flow"), K=stack("K"), depth2=stack("depth2"),
                      index=stack("index"), gt_flow=stack("gt_flow"), moving=stack("moving"))
+
+
+def pairs_with_gt_flow(reader) -> set[int]:
+    """Global indices of the pairs whose block stores ground-truth flow (from the cache's manifest)."""
+    out: set[int] = set()
+    for seq in reader.manifest["sequences"].values():
+        for b in seq["blocks"]:
+            if b.get("has_gt_flow", False):
+                out.update(range(int(b["first_pair"]), int(b["first_pair"]) + int(b["num_pairs"])))
+    return out
 
 
 def split_pairs(reader, val_fraction: float) -> tuple[list[int], list[int]]:
@@ -167,9 +200,9 @@ class StepBatches(torch.utils.data.Sampler):
     def __init__(self, n: int, batch_size: int, seed: int, start_step: int, total_steps: int,
                  rank: int = 0, world: int = 1, on_epoch=None) -> None:
         if batch_size % world:
-            raise ValueError(f"batch size {batch_size} is not divisible by the {world} processes")
+            raise ConfigError(f"batch size {batch_size} is not divisible by the {world} processes")
         if n < batch_size:
-            raise ValueError(f"only {n} training pairs for a batch of {batch_size}")
+            raise ConfigError(f"only {n} training pairs for a batch of {batch_size}")
         self.n, self.bs, self.seed = n, batch_size, seed
         self.start, self.total, self.rank, self.world = start_step, total_steps, rank, world
         self.per_epoch = n // batch_size
@@ -194,15 +227,25 @@ class StepBatches(torch.utils.data.Sampler):
 
 
 class EpochAware(torch.utils.data.Dataset):
-    """Wraps a :class:`PairDataset` so the sampler's (epoch, position) keys select the draw."""
+    """Wraps a dataset with ``set_epoch`` so the sampler's (epoch, position) keys select the draw.
 
-    def __init__(self, base: PairDataset) -> None:
+    ``carry_errors``: return an :class:`InputError` as a :class:`LoadFailure` (for :func:`collate` to pass
+    on) instead of raising it inside a DataLoader worker.
+    """
+
+    def __init__(self, base, carry_errors: bool = False) -> None:
         self.base = base
+        self.carry_errors = carry_errors
 
     def __len__(self) -> int:
         return len(self.base)
 
-    def __getitem__(self, key: tuple[int, int]) -> dict[str, np.ndarray]:
+    def __getitem__(self, key: tuple[int, int]) -> dict[str, np.ndarray] | LoadFailure:
         epoch, pos = key
         self.base.set_epoch(epoch)
-        return self.base[pos]
+        if not self.carry_errors:
+            return self.base[pos]
+        try:
+            return self.base[pos]
+        except InputError as exc:
+            return LoadFailure(str(exc.path), exc.problem)

@@ -3,24 +3,46 @@
 One step (paper §III): ``f_o = net(pc1, pc2)``; ``f_d = net(pc1 + sf_s, pc2)`` on the same sampled
 points; at every pyramid level the four losses (depth consistency, dynamic–static consistency, Chamfer,
 Laplacian) are weighted and summed; Adam steps. Checkpoints hold model, optimiser, scheduler, step and
-RNG states and are written atomically; ``resume`` continues from ``latest.pt``. A non-finite loss stops
-the run with a message and leaves the last good checkpoint in place.
+RNG states and are written atomically; ``resume`` continues from ``latest.pt`` and, on the CPU with a
+fixed ``threads``, reaches bit-identical weights to an uninterrupted run (the data draws depend only on
+(seed, epoch, pair index), and nothing in a step draws from a global RNG). A non-finite loss or gradient
+stops the run with a message before the optimiser step, so the last good checkpoint stays in place.
+
+Data parallel (torchrun): ``optim.batch_size`` is the global batch, split evenly over the processes;
+DDP averages the gradients, and with ``sync_bn`` (default) batch norm uses the global batch's statistics,
+so P processes train like one process with the same global batch (up to float summation order).
+
+Logs in the run folder: ``train.csv``/``train.jsonl`` (every logged step: loss, every loss term per
+level ``l{k}/{term}``, lr, gradient norm, timings in seconds) and ``val.csv``/``val.jsonl`` (EPE3D in
+metres at the finest level and the total loss on the held-out pairs); ``config.json``; ``latest.pt`` and
+``best.pt`` (lowest validation EPE3D).
 """
 
 from __future__ import annotations
 
 import math
+import random
 import time
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import InputError, MonoflowError
+from pipeline.errors import ConfigError, InputError, MonoflowError
 from training.config import TrainConfig
-from training.data import EpochAware, FlowBatch, PairDataset, StepBatches, collate, split_pairs
+from training.data import (
+    EpochAware,
+    FlowBatch,
+    LoadFailure,
+    PairDataset,
+    StepBatches,
+    collate,
+    pairs_with_gt_flow,
+    split_pairs,
+)
 from training.losses.total import LevelInputs, multi_level_loss
 from training.model.halflownet import FlowOutput, HALFlowNet
 from training.runtime import checkpoints, distributed
@@ -28,16 +50,27 @@ from training.runtime.device import resolve_device
 from training.runtime.logs import MetricLogger
 from training.runtime.rundir import save_run_info
 
+# Options a resumed run may change without changing the trajectory of the weights.
+RESUMABLE_CHANGES = frozenset({
+    "cache", "run_dir", "steps", "epochs", "device", "threads", "amp", "deterministic", "log_every",
+    "val_every", "ckpt_every", "progress", "data.workers", "data.val_pairs_max", "model.knn_backend",
+    "loss.knn_backend",
+})
+
 
 class TrainingDiverged(MonoflowError):
-    """The loss became NaN or infinite."""
+    """The loss or the gradient became NaN or infinite."""
 
 
 def lr_factor(step: int, cfg: TrainConfig) -> float:
-    """Multiplier of the base lr at ``step``: decay per ``decay_every_samples`` samples, floored."""
+    """Multiplier of the base lr after ``step`` optimiser steps.
+
+    ``decay ** (step · batch_size // decay_every_samples)`` (the paper: 0.7 per 200k samples), floored so
+    that the lr never falls below ``lr_min`` (a base lr already below ``lr_min`` is left as it is).
+    """
     o = cfg.optim
     samples = step * o.batch_size
-    return max(o.decay ** (samples // o.decay_every_samples), o.lr_min / o.lr)
+    return max(o.decay ** (samples // o.decay_every_samples), min(1.0, o.lr_min / o.lr))
 
 
 def gather(x: Tensor, idx: Tensor) -> Tensor:
@@ -50,7 +83,7 @@ def gather(x: Tensor, idx: Tensor) -> Tensor:
 def forward_two_passes(net, batch: FlowBatch) -> tuple[FlowOutput, FlowOutput]:
     """The overall pass on (pc1, pc2) and the dynamic pass on (pc1 + sf_s, pc2) at the same points."""
     out_o = net(batch.pc1, batch.pc2, batch.feat1, batch.feat2)
-    out_d = net(batch.pc1 + batch.static_flow, batch.pc2, batch.feat1, batch.feat2, sample_like=out_o)
+    out_d = net(batch.pc1 + batch.static_flow, batch.pc2, batch.feat1, batch.feat2, sampling=out_o.sampling)
     return out_o, out_d
 
 
@@ -66,53 +99,101 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput) -> list
 
 
 def epe3d(out: FlowOutput, batch: FlowBatch) -> tuple[float, int]:
-    """Sum of per-point EPE3D at the finest level and the number of points (for a mean)."""
+    """Sum of per-point EPE3D (metres) at the finest level and the number of points (for a mean)."""
     gt = gather(batch.gt_flow, out.indices[0])
     err = torch.linalg.norm(out.flows[0].float() - gt, dim=-1)
     return float(err.sum()), int(err.numel())
 
 
+def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = tuple(v) if isinstance(v, list) else v
+    return out
+
+
+def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """Options (dotted names) whose values differ between two ``asdict(TrainConfig)`` and that change
+    what a resumed run computes (everything but :data:`RESUMABLE_CHANGES`); options absent from either
+    side (added to the code since) are not compared."""
+    a, b = _flat(saved), _flat(current)
+    return [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted(a.keys() & b.keys())
+            if k not in RESUMABLE_CHANGES and a[k] != b[k]]
+
+
+def check_config(cfg: TrainConfig) -> None:
+    """Combinations the dataclasses cannot check alone (ConfigError)."""
+    if cfg.data.n_points < cfg.model.level_points[0]:
+        raise ConfigError(f"data.n_points {cfg.data.n_points} < model.level_points[0] {cfg.model.level_points[0]}: "
+                          "set --model.n_points/--model.level_points to match the points drawn")
+    for name in ("log_every", "val_every", "ckpt_every"):
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
+    if cfg.optim.batch_size < 1 or cfg.optim.decay_every_samples < 1 or not cfg.optim.lr > 0:
+        raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1 and lr > 0, got {cfg.optim}")
+    if cfg.threads < 0 or cfg.data.workers < 0:
+        raise ConfigError(f"threads and data.workers must be >= 0, got {cfg.threads} and {cfg.data.workers}")
+
+
 class Trainer:
-    """Builds everything from a :class:`TrainConfig`; :meth:`fit` runs to ``config.steps``."""
+    """Builds everything from a :class:`TrainConfig`; :meth:`fit` runs to ``self.steps``."""
 
     def __init__(self, cfg: TrainConfig, resume: bool = False) -> None:
         from pipeline.cache import CacheReader
 
+        check_config(cfg)
         self.cfg = cfg
+        if cfg.threads > 0:
+            torch.set_num_threads(cfg.threads)
         self.device = resolve_device(cfg.device)
         self.dist = distributed.init_distributed(self.device)
         if cfg.deterministic:
             torch.use_deterministic_algorithms(True, warn_only=True)
-        torch.manual_seed(cfg.seed)
+        random.seed(cfg.seed)
         np.random.seed(cfg.seed)
+        torch.manual_seed(cfg.seed)
         self.run_dir = Path(cfg.run_dir)
         self.reader = CacheReader(cfg.cache)
-        train_idx, val_idx = split_pairs(self.reader, cfg.data.val_fraction)
-        self.has_gt = self.reader.has_gt_flow
-        if not self.has_gt:
-            val_idx, train_idx = [], sorted(train_idx + val_idx)
-        self.train_idx, self.val_idx = train_idx, val_idx[: cfg.data.val_pairs_max]
+        self.train_idx, self.val_idx = self._split()
         d = cfg.data
-        self.train_set = PairDataset(self.reader, train_idx, d.n_points, cfg.seed, d.colour_features,
+        self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m)
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1)
         self.steps = self._total_steps()
+        # checks batch size against the pairs and the processes now rather than at the first step
+        StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)
 
-        self.model = HALFlowNet(cfg.model).to(self.device)
-        self.net = distributed.wrap_model(self.model, self.dist, self.device)
+        self.net = distributed.wrap_model(HALFlowNet(cfg.model).to(self.device), self.dist, self.device,
+                                          sync_bn=cfg.sync_bn)
+        self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg))
         self.step = 0
         self.best_val: float | None = None
-        if resume and (self.run_dir / "latest.pt").exists():
+        resumed = resume and (self.run_dir / "latest.pt").exists()
+        if resumed:
             self._load(self.run_dir / "latest.pt")
         if self.dist.is_main:
             save_run_info(self.run_dir, {"train": asdict(cfg), "train_pairs": len(self.train_idx),
-                                         "val_pairs": len(self.val_idx), "cache": str(cfg.cache)})
-        self.logger = MetricLogger(self.run_dir, resume_step=self.step if resume else None) if self.dist.is_main else None
+                                         "val_pairs": len(self.val_idx), "cache": str(cfg.cache),
+                                         "world_size": self.dist.world_size, "resumed_at_step": self.step})
+        keep = self.step if resumed else None
+        self.logger = MetricLogger(self.run_dir, "train", resume_step=keep) if self.dist.is_main else None
+        self.val_logger = MetricLogger(self.run_dir, "val", resume_step=keep) if self.dist.is_main else None
 
     # ------------------------------------------------------------------ set-up helpers
+    def _split(self) -> tuple[list[int], list[int]]:
+        """Training and validation pairs: the held-out tail of every sequence, where it has GT flow."""
+        train, held = split_pairs(self.reader, self.cfg.data.val_fraction)
+        with_gt = pairs_with_gt_flow(self.reader)
+        val = [i for i in held if i in with_gt]
+        train = sorted(train + [i for i in held if i not in with_gt])
+        return train, val[: self.cfg.data.val_pairs_max]
+
     def _total_steps(self) -> int:
         cfg = self.cfg
         if cfg.epochs and cfg.epochs > 0:
@@ -124,10 +205,12 @@ class Trainer:
         sampler = StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, self.step, self.steps,
                               self.dist.rank, self.dist.world_size)
         workers = cfg.data.workers
-        return torch.utils.data.DataLoader(EpochAware(self.train_set), batch_sampler=sampler, collate_fn=collate,
-                                           num_workers=workers, persistent_workers=False,
+        # own generator: creating the iterator must not draw from the global torch RNG (resume equality)
+        return torch.utils.data.DataLoader(EpochAware(self.train_set, carry_errors=True), batch_sampler=sampler,
+                                           collate_fn=collate, num_workers=workers, persistent_workers=False,
                                            pin_memory=self.device.type == "cuda",
-                                           prefetch_factor=4 if workers > 0 else None)
+                                           prefetch_factor=4 if workers > 0 else None,
+                                           generator=torch.Generator().manual_seed(cfg.seed))
 
     def _payload(self) -> dict:
         return {"kind": "flow", "model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
@@ -142,54 +225,109 @@ class Trainer:
     def _load(self, path: Path) -> None:
         ckpt = checkpoints.load_checkpoint(path, kind="flow")
         try:
+            changed = config_changes(ckpt["config"], asdict(self.cfg))
+            if changed:
+                raise InputError(path, f"written by a run with other settings ({'; '.join(changed)}); "
+                                       "resume with the same settings or use a new run_dir")
             self.model.load_state_dict(ckpt["model"])
-        except RuntimeError as exc:
-            raise InputError(path, f"model does not match this config ({str(exc).splitlines()[0]})") from None
-        self.optimizer.load_state_dict(ckpt["optimizer"])
-        self.scheduler.load_state_dict(ckpt["scheduler"])
-        self.step = int(ckpt["step"])
-        self.best_val = ckpt.get("best_val")
-        checkpoints.set_rng_state(ckpt["rng"])
+            self.optimizer.load_state_dict(ckpt["optimizer"])
+            self.scheduler.load_state_dict(ckpt["scheduler"])
+            self.step = int(ckpt["step"])
+            self.best_val = ckpt.get("best_val")
+            checkpoints.set_rng_state(ckpt["rng"])
+        except KeyError as exc:
+            raise InputError(path, f"checkpoint lacks {exc}") from None
+        except (RuntimeError, ValueError, TypeError) as exc:
+            text = " ".join(str(exc).split())
+            raise InputError(path, f"does not fit this run ({type(exc).__name__}: {text[:200]})") from None
+
+    def _sync(self) -> None:
+        """Wait for the GPU, so that the step's phases are timed correctly (no-op on the CPU)."""
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
 
     # ------------------------------------------------------------------ the loop
+    def _stop_if_not_finite(self, what: str, value: float, detail: str) -> None:
+        finite = math.isfinite(value)
+        if self.dist.enabled:  # every rank must stop together, or the others hang in the next collective
+            finite = distributed.all_reduce_mean({"finite": float(finite)}, self.dist)["finite"] == 1.0
+        if not finite:
+            raise TrainingDiverged(f"non-finite {what} at step {self.step + 1} ({detail}); training stopped, "
+                                   f"last good checkpoint kept at {self.run_dir / 'latest.pt'}")
+
+    def _check_batch(self, batch: FlowBatch) -> None:
+        """Non-finite points or features in the cache stop the run naming the pairs (the kNN would fail
+        deep inside scipy otherwise)."""
+        for name in ("pc1", "pc2", "static_flow", "feat1", "feat2"):
+            t = getattr(batch, name)
+            if not bool(torch.isfinite(t).all()):
+                rows = (~torch.isfinite(t)).flatten(1).any(1).cpu()
+                raise InputError(self.cfg.cache, f"non-finite {name} in pair(s) {batch.index[rows].tolist()}")
+
     def train_step(self, batch: FlowBatch) -> dict[str, float]:
-        """One optimiser step; returns every loss term (per level) plus timings."""
+        """One optimiser step; returns the loss, every loss term per level, the gradient norm and the
+        time (seconds) of forward (both passes), losses, backward and optimiser step."""
         t0 = time.perf_counter()
+        self._check_batch(batch)
         self.net.train()
         amp = self.cfg.amp and self.device.type == "cuda"
         with torch.autocast(device_type=self.device.type, dtype=torch.bfloat16, enabled=amp):
             out_o, out_d = forward_two_passes(self.net, batch)
+        self._sync()
         t1 = time.perf_counter()
         total, terms = multi_level_loss(level_inputs(batch, out_o, out_d), self.cfg.loss)
         t2 = time.perf_counter()
-        if not torch.isfinite(total):
-            raise TrainingDiverged(f"non-finite loss at step {self.step + 1} ({terms}); "
-                                   f"last good checkpoint kept at {self.run_dir / 'latest.pt'}")
+        bad = [k for k, v in terms.items() if not math.isfinite(v)]
+        self._stop_if_not_finite("loss", float(total.detach()), "terms " + ", ".join(bad) if bad else "total")
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
+        params = [p for p in self.model.parameters() if p.grad is not None]
         if self.cfg.optim.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.optim.grad_clip)
+            norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.grad_clip)
+        else:
+            norm = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in params]))
+        grad_norm = float(norm)
+        t3 = time.perf_counter()
+        self._stop_if_not_finite("gradient", grad_norm, f"norm {grad_norm}")
         self.optimizer.step()
         self.scheduler.step()
-        t3 = time.perf_counter()
-        return {"loss": float(total), **{k: float(v) for k, v in terms.items()},
-                "time_forward": t1 - t0, "time_loss": t2 - t1, "time_backward": t3 - t2}
+        self._sync()
+        t4 = time.perf_counter()
+        return {"loss": float(total.detach()), **terms, "grad_norm": grad_norm,
+                "time_forward": t1 - t0, "time_loss": t2 - t1, "time_backward": t3 - t2, "time_optim": t4 - t3}
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Mean EPE3D (finest level) and mean total loss on the held-out pairs (fixed draw)."""
+        """Mean EPE3D (metres, finest level, per point) and mean total loss (per pair) on the held-out pairs
+        (a fixed draw), in eval mode. Under DDP the batches are shared among the processes."""
         if not self.val_idx:
             return {}
-        self.net.eval()
-        err_sum, n_pts, loss_sum, n_batches = 0.0, 0, 0.0, 0
+        model, was_training = self.model, self.model.training
+        model.eval()
+        sums = np.zeros(4)  # EPE sum, points, loss sum (pair-weighted), pairs
         bs = self.cfg.optim.batch_size
-        for start in range(0, len(self.val_idx), bs):
-            batch = collate([self.val_set[p] for p in range(start, min(start + bs, len(self.val_idx)))]).to(self.device)
-            out_o, out_d = forward_two_passes(self.net, batch)
+        starts = list(range(0, len(self.val_idx), bs))[self.dist.rank::self.dist.world_size]
+        for start in starts:
+            samples = [self.val_set[p] for p in range(start, min(start + bs, len(self.val_idx)))]
+            batch = collate(samples).to(self.device)
+            out_o, out_d = forward_two_passes(model, batch)
             total, _ = multi_level_loss(level_inputs(batch, out_o, out_d), self.cfg.loss)
             e, n = epe3d(out_o, batch)
-            err_sum, n_pts, loss_sum, n_batches = err_sum + e, n_pts + n, loss_sum + float(total), n_batches + 1
-        return {"val_epe3d": err_sum / max(n_pts, 1), "val_loss": loss_sum / max(n_batches, 1)}
+            sums += (e, n, float(total) * len(samples), len(samples))
+        model.train(was_training)
+        if self.dist.enabled:  # means of the per-rank sums; their ratios are the global ratios
+            red = distributed.all_reduce_mean({str(k): v for k, v in enumerate(sums)}, self.dist)
+            sums = np.array([red[str(k)] for k in range(4)])
+        return {"val_epe3d": float(sums[0] / max(sums[1], 1e-12)), "val_loss": float(sums[2] / max(sums[3], 1e-12))}
+
+    def _after_validation(self, val: dict[str, float]) -> None:
+        if not val:
+            return
+        if self.val_logger:
+            self.val_logger.log({"step": self.step, **val})
+        if self.step > 0 and (self.best_val is None or val["val_epe3d"] < self.best_val):
+            self.best_val = val["val_epe3d"]
+            self._save("best.pt")
 
     def fit(self) -> dict[str, float]:
         """Train to ``self.steps``; returns the last logged row (with validation when available)."""
@@ -198,13 +336,15 @@ class Trainer:
         cfg = self.cfg
         last: dict[str, float] = {}
         if self.step == 0 and self.val_idx:
-            last = {"step": 0, **self.validate()}
-            if self.logger:
-                self.logger.log(last)
+            val = self.validate()
+            self._after_validation(val)
+            last = {"step": 0, **val}
         bar = tqdm(total=self.steps, initial=self.step, desc="train", disable=not (cfg.progress and self.dist.is_main),
                    dynamic_ncols=True)
         t_data = time.perf_counter()
         for batch in self._loader():
+            if isinstance(batch, LoadFailure):
+                raise batch.error()
             batch = batch.to(self.device)
             data_time = time.perf_counter() - t_data
             row = self.train_step(batch)
@@ -212,16 +352,21 @@ class Trainer:
             bar.update(1)
             row = {"step": self.step, "lr": self.optimizer.param_groups[0]["lr"], "time_data": data_time, **row}
             is_val = self.step % cfg.val_every == 0 or self.step == self.steps
+            is_ckpt = self.step % cfg.ckpt_every == 0 or self.step == self.steps
             if self.step % cfg.log_every == 0 or is_val:
                 row = distributed.all_reduce_mean(row, self.dist)
-                if is_val:
-                    row.update(self.validate())
                 if self.logger:
                     self.logger.log(row)
-                bar.set_postfix(loss=f"{row['loss']:.4f}", **({"epe": f"{row['val_epe3d']:.3f}"} if "val_epe3d" in row else {}))
                 last = row
-            if self.step % cfg.ckpt_every == 0 or self.step == self.steps:
+            if is_val:  # before the checkpoint, so that latest.pt holds the updated best_val
+                val = self.validate()
+                self._after_validation(val)
+                last = {**last, **val}
+            if is_ckpt:
                 self._save()
+            if "loss" in last:
+                bar.set_postfix(loss=f"{last['loss']:.4f}",
+                                **({"epe": f"{last['val_epe3d']:.3f}"} if "val_epe3d" in last else {}))
             t_data = time.perf_counter()
         bar.close()
         return last

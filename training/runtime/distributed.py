@@ -41,12 +41,22 @@ def init_distributed(device) -> DistInfo:
                     local_rank=int(os.environ.get("LOCAL_RANK", "0")))
 
 
-def wrap_model(model, info: DistInfo, device):
-    """Wrap ``model`` in DDP when distributed; return it unchanged otherwise."""
+def wrap_model(model, info: DistInfo, device, sync_bn: bool = False):
+    """Wrap ``model`` in DDP when distributed; return it unchanged otherwise.
+
+    ``sync_bn``: first make every batch norm use the statistics of the global batch
+    (:func:`training.runtime.sync_bn.convert_batchnorm`), so the run equals a single-process run with the
+    same global batch. The layers are replaced inside ``model``: take the module to save, optimise and
+    evaluate from :func:`unwrap` of the result.
+    """
     if not info.enabled:
         return model
     from torch.nn.parallel import DistributedDataParallel as DDP
 
+    if sync_bn:
+        from training.runtime.sync_bn import convert_batchnorm
+
+        model = convert_batchnorm(model, device)
     ids = [device.index] if device.type == "cuda" else None
     return DDP(model, device_ids=ids)
 

@@ -1,0 +1,104 @@
+"""GlobalBatchNorm: two gloo processes with half a batch each equal one process with the whole batch."""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from training.runtime.sync_bn import GlobalBatchNorm, convert_batchnorm
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _net() -> nn.Module:
+    torch.manual_seed(3)
+    return nn.Sequential(nn.Linear(4, 6, bias=False), nn.BatchNorm1d(6), nn.ReLU(), nn.Linear(6, 2))
+
+
+def _data() -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(7)
+    x = torch.randn(2, 10, 4, generator=g) * torch.tensor([1.0, 3.0, 0.5, 2.0]) + 1.5
+    return x, torch.randn(2, 10, 2, generator=g)
+
+
+def _loss(net: nn.Module, x: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-element mean, like the flow losses; called twice per step like the trainer's two passes."""
+    return ((net(x) - target) ** 2).mean() + (net(0.5 * x) ** 2).mean()
+
+
+def _worker(rank: int, port: int, queue) -> None:
+    import os
+
+    import torch.distributed as dist
+    from torch.nn.parallel import DistributedDataParallel as DDP
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    torch.set_num_threads(1)
+    dist.init_process_group("gloo", rank=rank, world_size=2)
+    try:
+        net = convert_batchnorm(_net(), torch.device("cpu"))
+        ddp = DDP(net)
+        x, target = _data()
+        _loss(ddp, x[rank].reshape(-1, 4), target[rank].reshape(-1, 2)).backward()
+        bn = net[1]
+        # numpy, not tensors: torch's queue would pass tensors as shared memory this process frees on exit
+        queue.put((rank, {k: p.grad.numpy().copy() for k, p in net.named_parameters()},
+                   bn.running_mean.numpy().copy(), bn.running_var.numpy().copy(), type(bn).__name__))
+    finally:
+        dist.destroy_process_group()
+
+
+def test_convert_shares_parameters_and_keeps_state_dict_keys():
+    net = _net()
+    before = {k: v for k, v in net.state_dict().items()}
+    weight = net[1].weight
+    conv = convert_batchnorm(net, torch.device("cpu"))
+    assert isinstance(conv[1], GlobalBatchNorm) and conv[1].weight is weight
+    assert conv.state_dict().keys() == before.keys()
+
+
+def test_single_process_is_plain_batch_norm():
+    torch.set_num_threads(1)
+    x, target = _data()
+    plain, conv = _net(), convert_batchnorm(_net(), torch.device("cpu"))
+    for net in (plain, conv):
+        _loss(net, x.reshape(-1, 4), target.reshape(-1, 2)).backward()
+    for (k, a), (_, b) in zip(plain.named_parameters(), conv.named_parameters()):
+        assert torch.equal(a.grad, b.grad), k
+    assert torch.equal(plain[1].running_var, conv[1].running_var)
+
+
+def test_two_processes_match_one_process_with_the_whole_batch():
+    torch.set_num_threads(1)
+    ctx = torch.multiprocessing.get_context("spawn")
+    queue = ctx.SimpleQueue()
+    port = _free_port()
+    procs = [ctx.Process(target=_worker, args=(r, port, queue)) for r in range(2)]
+    for p in procs:
+        p.start()
+    results = sorted(queue.get() for _ in procs)
+    for p in procs:
+        p.join(timeout=60)
+        assert p.exitcode == 0
+    net = _net()
+    x, target = _data()
+    _loss(net, x.reshape(-1, 4), target.reshape(-1, 2)).backward()
+    for rank, grads, mean, var, kind in results:
+        assert kind == "GlobalBatchNorm"
+        for k, p in net.named_parameters():
+            assert np.allclose(grads[k], p.grad.numpy(), rtol=1e-5, atol=1e-6), (rank, k, grads[k], p.grad)
+        assert np.allclose(mean, net[1].running_mean.numpy(), atol=1e-6)
+        assert np.allclose(var, net[1].running_var.numpy(), atol=1e-6)
+
+
+def test_rejects_1d_input():
+    with pytest.raises(ValueError):
+        GlobalBatchNorm(3)(torch.zeros(3))
