@@ -160,9 +160,11 @@ def _level(n: int, seed: int, requires_grad: bool = True) -> LevelInputs:
 LEVEL_SIZES = (48, 24, 16, 12)
 
 
-def test_all_terms_have_finite_gradients_including_masked_and_duplicate_points():
+@pytest.mark.parametrize("norm", ["l1", "l2"])
+def test_all_terms_have_finite_gradients_including_masked_and_duplicate_points(norm):
     levels = [_level(n, seed) for seed, n in enumerate(LEVEL_SIZES)]
-    total, terms = multi_level_loss(levels, LossWeights())
+    # the random depth map is edges everywhere: switch the edge mask off so the depth term is exercised
+    total, terms = multi_level_loss(levels, LossWeights(depth_norm=norm, depth_edge_tolerance=0.0))
     total.backward()
     for k, lv in enumerate(levels):
         for name in ("depth1", "depth2", "depth", "ds", "chamfer", "laplacian", "weighted"):
@@ -173,7 +175,7 @@ def test_all_terms_have_finite_gradients_including_masked_and_duplicate_points()
     for use in ("use_depth", "use_ds", "use_chamfer", "use_laplacian"):
         only = {u: u == use for u in ("use_depth", "use_ds", "use_chamfer", "use_laplacian")}
         lv = _level(24, 7)
-        t, _ = multi_level_loss([lv] * 4, LossWeights(**only))
+        t, _ = multi_level_loss([lv] * 4, LossWeights(**only, depth_norm=norm, depth_edge_tolerance=0.0))
         t.backward()
         assert torch.isfinite(lv.flow_o.grad).all() and lv.flow_o.grad.abs().sum() > 0, use
 

@@ -221,3 +221,48 @@ def test_bad_input_raises_input_error():
         depth_consistency(p1 + flow, K, d2[0])
     with pytest.raises(InputError, match="points_warped"):
         depth_consistency(p1[0], K, d2)
+
+
+def _step_scene():
+    """A 6×8 depth map: 5 m on the left half (u ≤ 3), 50 m on the right; K with f = 10, c = (3.5, 2.5)."""
+    import torch
+
+    H, W = 6, 8
+    depth = torch.full((1, H, W), 5.0)
+    depth[..., 4:] = 50.0
+    K = torch.tensor([[[10.0, 0.0, 3.5], [0.0, 10.0, 2.5], [0.0, 0.0, 1.0]]])
+    return depth, K
+
+
+def test_edge_tolerance_masks_samples_straddling_a_depth_edge():
+    import torch
+
+    from training.losses.depth_consistency import depth_consistency_residuals
+
+    depth, K = _step_scene()
+    # u = 3.5 lies between the 5 m column 3 and the 50 m column 4; u = 1 is inside the 5 m half.
+    pts = torch.tensor([[[(3.5 - 3.5) * 5.0 / 10.0, 0.0, 5.0], [(1.0 - 3.5) * 5.0 / 10.0, 0.0, 5.0]]])
+    res_plain, valid_plain = depth_consistency_residuals(pts, K, depth)
+    assert valid_plain.all()
+    assert float(res_plain[0, 0]) == pytest.approx((27.5 - 5.0) ** 2 * (1 + 0.0 + 0.0), rel=1e-5)  # bilinear mix
+    res_edge, valid_edge = depth_consistency_residuals(pts, K, depth, edge_tolerance=0.05)
+    assert valid_edge.tolist() == [[False, True]]
+    assert float(res_edge[0, 1]) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_l1_norm_is_the_residual_length():
+    import torch
+
+    from training.losses.depth_consistency import depth_consistency
+
+    depth, K = _step_scene()
+    pts = torch.tensor([[[(1.0 - 3.5) * 6.0 / 10.0, 0.0, 6.0]]], requires_grad=True)  # 1 m behind the 5 m wall
+    # residual = (D̂ − z̄)·K⁻¹[u, v, 1] = −1 · (−0.25, 0, 1): length sqrt(1.0625)
+    l2 = depth_consistency(pts, K, depth)
+    l1 = depth_consistency(pts, K, depth, norm="l1")
+    assert float(l2.detach()) == pytest.approx(1.0625, rel=1e-5)
+    assert float(l1.detach()) == pytest.approx(1.0625 ** 0.5, abs=2e-3)
+    l1.backward()
+    assert torch.isfinite(pts.grad).all()
+    with pytest.raises(Exception, match="norm"):
+        depth_consistency(pts, K, depth, norm="l3")

@@ -22,6 +22,11 @@ class DataConfig:
         these angles (degrees, per axis) and translations (metres, per axis) — the released code's
         augmentation; 0 disables it.
     workers: DataLoader worker processes (0 = load in the training process).
+    depth2_kept_only: the depth-consistency loss samples D_{t+1} only at frame-(t+1) pixels that survived
+        stage one's filters (ground, sky, LiDAR range, occlusion), i.e. the surfaces pc2 holds; other pixels
+        count as invalid and the points landing there are masked. False = the whole depth map (the
+        released code). Without it, a point can satisfy depth consistency by sliding onto the road, which
+        the ground filter removed from pc2 (see the note in BENCHMARKS.md / the trainer tests).
     """
 
     n_points: int = 8192
@@ -31,6 +36,7 @@ class DataConfig:
     jitter_deg: float = 0.0
     jitter_m: float = 0.0
     workers: int = 2
+    depth2_kept_only: bool = False
 
 
 @dataclass

@@ -76,6 +76,15 @@ def random_rigid(rng: np.random.Generator, max_deg: float, max_m: float) -> np.n
     return geometry.pose_vec_to_mat(np.concatenate([t, angles]))
 
 
+def kept_depth(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``depth`` (H, W) with every pixel not in ``uv`` (N, 2) (pixel coordinates of kept points) set to 0."""
+    H, W = depth.shape
+    flat = np.rint(uv[:, 1]).astype(np.int64) * W + np.rint(uv[:, 0]).astype(np.int64)
+    out = np.zeros(H * W, np.float32)
+    out[flat] = depth.reshape(-1)[flat]
+    return out.reshape(H, W)
+
+
 class PairDataset(torch.utils.data.Dataset):
     """Samples of a :class:`pipeline.cache.CacheReader` restricted to ``indices``.
 
@@ -84,7 +93,8 @@ class PairDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
-                 jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None) -> None:
+                 jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
+                 depth2_kept_only: bool = False) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -92,6 +102,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.colour_features = colour_features
         self.jitter_deg = jitter_deg
         self.jitter_m = jitter_m
+        self.depth2_kept_only = depth2_kept_only
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -122,8 +133,11 @@ class PairDataset(torch.utils.data.Dataset):
         else:
             f1 = np.zeros((self.n_points, 3), np.float32)
             f2 = np.zeros((self.n_points, 3), np.float32)
+        depth2 = np.asarray(s.depth2, np.float32)
+        if self.depth2_kept_only:
+            depth2 = kept_depth(depth2, s.uv2)
         out = {"pc1": pc1, "pc2": s.pc2[c2].astype(np.float32), "feat1": f1, "feat2": f2,
-               "static_flow": sf, "K": np.asarray(s.K, np.float32), "depth2": np.asarray(s.depth2, np.float32),
+               "static_flow": sf, "K": np.asarray(s.K, np.float32), "depth2": depth2,
                "index": np.int64(i)}
         if s.gt_flow is not None:
             out["gt_flow"] = s.gt_flow[c1].astype(np.float32)

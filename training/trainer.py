@@ -160,9 +160,9 @@ class Trainer:
         self.train_idx, self.val_idx = self._split()
         d = cfg.data
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
-                                     d.jitter_deg, d.jitter_m)
+                                     d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only)
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
-                                   fixed_epoch=-1)
+                                   fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only)
         self.steps = self._total_steps()
         # checks batch size against the pairs and the processes now rather than at the first step
         StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)

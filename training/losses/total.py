@@ -40,6 +40,8 @@ class LossWeights:
     depth_variant: ``"paper"`` | ``"released"`` (see :func:`depth_consistency`).
     laplacian_k, interp_k: neighbours of the Laplacian (10) and of its interpolation (5).
     eps: depth (metres) at or below which a warped point counts as behind the camera.
+    depth_edge_tolerance: depth consistency ignores points whose bilinear depth sample straddles a depth
+        edge (2×2 pixels spanning more than this fraction); 0 = plain bilinear sampling (the paper).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -53,6 +55,8 @@ class LossWeights:
     laplacian_k: int = 10
     interp_k: int = 5
     eps: float = 1e-3
+    depth_edge_tolerance: float = 0.05
+    depth_norm: str = "l1"
     knn_backend: KnnBackend = "auto"
 
     def __post_init__(self) -> None:
@@ -110,7 +114,8 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     out: dict[str, Tensor] = {}
     if w.use_depth:
         warped_ds = level.pc1 + level.static_flow + level.flow_d
-        kw = dict(variant=w.depth_variant, source_points=level.pc1, eps=w.eps)
+        kw = dict(variant=w.depth_variant, source_points=level.pc1, eps=w.eps, edge_tolerance=w.depth_edge_tolerance,
+                  norm=w.depth_norm)
         out["depth1"] = depth_consistency(warped, level.K, level.depth2, **kw)
         out["depth2"] = depth_consistency(warped_ds, level.K, level.depth2, **kw)
         out["depth"] = out["depth1"] + out["depth2"]
