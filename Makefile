@@ -24,8 +24,10 @@ install: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# OMP_WAIT_POLICY=PASSIVE: torch's idle threads sleep instead of spinning, so a busy 2-core machine
+# does not slow training 10-30x (measured; see BENCHMARKS.md).
 demo: $(STAMP)
-	$(BIN)/python -m scripts.demo --out $(OUT) --depth $(DEPTH)
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m scripts.demo --out $(OUT) --depth $(DEPTH)
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all

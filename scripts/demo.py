@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="cache/demo")
     p.add_argument("--depth", choices=("gt", "learned"), default="gt")
-    p.add_argument("--steps", type=int, default=300, help="scene-flow training steps")
+    p.add_argument("--steps", type=int, default=500, help="scene-flow training steps")
     p.add_argument("--n-points", type=int, default=2048, help="points per cloud (paper: 8192)")
     p.add_argument("--width-scale", type=float, default=0.5, help="net width multiplier (paper: 1)")
     p.add_argument("--seed", type=int, default=0)
@@ -81,7 +81,8 @@ def _run(args) -> int:
     tcfg = TrainConfig(cache=str(summary.cache_root), run_dir=str(out / f"flow_run_{args.depth}"), steps=args.steps,
                        seed=args.seed, device="auto", log_every=max(1, args.steps // 20),
                        val_every=max(1, args.steps // 5), ckpt_every=max(1, args.steps // 5),
-                       data=DataConfig(n_points=args.n_points, workers=1),
+                       # the test split is LiDAR-like (no colours), so the net learns from geometry alone
+                       data=DataConfig(n_points=args.n_points, workers=1, colour_features=False),
                        optim=OptimConfig(batch_size=4),
                        model=HALFlowConfig(n_points=args.n_points, level_points=level_points_for(args.n_points),
                                            width_scale=args.width_scale))
