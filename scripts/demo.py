@@ -49,8 +49,11 @@ def _run(args) -> int:
 
     t_start = time.perf_counter()
     out = Path(args.out)
-    world = out / "world"
-    synth = SynthConfig(seed=args.seed)
+    if args.depth == "learned":
+        # photometric self-supervision needs an anti-aliased world (aliased textures flicker between frames)
+        world, synth = out / "world_aa", SynthConfig(seed=args.seed, supersample=2)
+    else:
+        world, synth = out / "world", SynthConfig(seed=args.seed)
 
     _say(f"1/4 synthetic world ({synth.width}x{synth.height}, seed {synth.seed}) -> {world}")
     print("\n".join(generate(synth, world, workers=2).lines()), flush=True)
@@ -58,14 +61,14 @@ def _run(args) -> int:
     size = f"{synth.width}x{synth.height}"
     train_seqs = training_sequences(AblationConfig(world=str(world)))  # never the test sequence
     if args.depth == "learned":
-        from training.depth.presets import demo_config
-        from training.depth.trainer import train_depth
+        from training.depth import demo_config, train_depth
 
         _say("1b/4 self-supervised depth and pose nets on the world (SC-SfMLearner losses)")
-        dcfg = demo_config(root=str(world), run_dir=str(out / "depth_run"), seed=args.seed)
-        ckpts = train_depth(dcfg)
-        pcfg = PreprocessConfig(root=str(world), depth="net", pose="net", depth_checkpoint=str(ckpts["depth"]),
-                                pose_checkpoint=str(ckpts["pose"]), size=size, out=str(out / "cache"),
+        ckpts = train_depth(demo_config(str(world), str(out / "depth_run")), resume=True)
+        for when in ("initial", "final"):
+            print(f"  depth/pose validation, {when}: {ckpts.metrics.get(when)}", flush=True)
+        pcfg = PreprocessConfig(root=str(world), depth="net", pose="net", depth_checkpoint=str(ckpts.disp),
+                                pose_checkpoint=str(ckpts.pose), size=size, out=str(out / "cache"),
                                 sequences=train_seqs)
         pcfg.scale.mode = "camera-height"
     else:

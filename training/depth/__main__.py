@@ -1,0 +1,5 @@
+"""``python -m training.depth`` = ``monoflow-train-depth``."""
+
+from training.depth.cli import main
+
+raise SystemExit(main())
