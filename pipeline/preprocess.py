@@ -514,25 +514,13 @@ class PreprocessSummary:
         return "\n".join(lines)
 
 
-def _versions() -> dict[str, str | None]:
-    import importlib.metadata as md
-    import platform
-
-    out: dict[str, str | None] = {"python": platform.python_version()}
-    for pkg in ("monoflow", "numpy", "torch", "zarr", "numcodecs", "opencv-python-headless", "scipy", "tqdm"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = None
-    return out
-
-
 def write_run_info(root: Path, config: PreprocessConfig) -> Path:
     """``preprocess_run.json`` beside the manifest: resolved config, package versions, git revision."""
     from pipeline.cache.layout import code_version, write_json_atomic
+    from pipeline.runinfo import package_versions
 
     path = Path(root) / RUN_INFO_NAME
-    write_json_atomic(path, {"config": dataclasses.asdict(config), "versions": _versions(),
+    write_json_atomic(path, {"config": dataclasses.asdict(config), "versions": package_versions(),
                              "code_version": code_version()})
     return path
 

@@ -5,24 +5,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import platform
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
-
-def package_versions() -> dict[str, str]:
-    """Versions of the packages a result depends on (absent ones are skipped)."""
-    from importlib import metadata
-
-    out = {"python": platform.python_version()}
-    for name in ("monoflow", "torch", "numpy", "scipy", "zarr", "numcodecs", "opencv-python-headless", "h5py"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
+from pipeline.runinfo import package_versions  # noqa: F401  (re-exported: the trainers' run info)
 
 
 def git_revision(start: Path | None = None) -> str | None:
