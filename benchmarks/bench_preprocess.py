@@ -70,7 +70,7 @@ def throughput(args, workdir: Path) -> dict:
     positions = list(range(len(seq)))
     pairs = len(positions) - 1
     spec = NetSpec(need_depth=True, need_pose=True, random_init=True, device=args.device, amp=args.amp,
-                   batch_size=args.batch_size)
+                   batch_size=args.batch_size, resnet_layers=args.resnet_layers)
 
     # Nets alone on the same frames (resized, in memory) and the whole stage into a fresh cache, interleaved
     # (nets, stage, nets, stage, ...) so that a shared machine's changing load hits both alike; each
@@ -94,7 +94,7 @@ def throughput(args, workdir: Path) -> dict:
         results = []
         shutil.rmtree(workdir / "cache_tp", ignore_errors=True)  # a fresh cache: nothing to resume
         cfg = PreprocessConfig(root=str(root), depth="net", pose="net", random_init=True, size=args.size,
-                               device=args.device, amp=args.amp, batch_size=args.batch_size,
+                               resnet_layers=args.resnet_layers, device=args.device, amp=args.amp, batch_size=args.batch_size,
                                block_size=args.block_size, scale=ScaleConfig(mode="fixed", factor=20.0),
                                workers=args.workers, out=str(workdir / "cache_tp"), progress=False)
         t = time.perf_counter()
@@ -122,6 +122,7 @@ def throughput(args, workdir: Path) -> dict:
         "device": str(runner.device),
         "torch_threads": torch.get_num_threads(),
         "size": args.size,
+        "resnet_layers": args.resnet_layers,
         "pairs": pairs,
         "block_size": args.block_size,
         "nets_alone_s": round(nets_s, 3),
@@ -215,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--device", default="cpu")
     p.add_argument("--amp", action="store_true")
+    p.add_argument("--resnet-layers", type=int, default=18, choices=(18, 50), help="depth net encoder (18 or 50)")
     p.add_argument("--repeats", type=int, default=3, help="timed repetitions (the median ratio is reported)")
     p.add_argument("--skip-bytes", action="store_true", help="skip the 832x256 bytes-per-pair part")
     p.add_argument("--workdir", default=None, help="keep worlds and caches here (default: a temp folder)")

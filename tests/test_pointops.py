@@ -122,3 +122,25 @@ def test_interpolation_gradients_are_finite_at_coincident_points():
     for t in (ref, feat, query):
         assert t.grad is not None and torch.isfinite(t.grad).all()
     assert feat.grad.abs().sum() > 0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_triton_fps_matches_the_loop_on_a_gpu():
+    """The Triton kernel (CUDA only) takes the same points as the PyTorch loop, duplicates and ties included,
+    and every pick is the farthest remaining point."""
+    from training import fps_triton
+    from training.pointops import farthest_point_sample_loop
+
+    if fps_triton.triton is None:
+        pytest.skip("triton is not installed")
+    g = torch.Generator().manual_seed(0)
+    grid = torch.stack(torch.meshgrid(torch.arange(8.0), torch.arange(8.0), torch.arange(4.0), indexing="ij"), -1)
+    clouds = [torch.rand(3, 8192, 3, generator=g) * 40, torch.rand(2, 1000, 3, generator=g),
+              grid.reshape(1, -1, 3).repeat(2, 2, 1)]  # 512 lattice points, each twice: exact ties
+    for xyz in clouds:
+        xyz = xyz.cuda()
+        n = min(xyz.shape[1], 2048)
+        fast = fps_triton.farthest_point_sample_triton(xyz, n)
+        assert fast.dtype == torch.int64 and fast.shape == (xyz.shape[0], n)
+        assert all(len(set(row.tolist())) == n for row in fast.cpu())  # distinct indices
+        torch.testing.assert_close(fast, farthest_point_sample_loop(xyz, n), rtol=0, atol=0)
