@@ -28,12 +28,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def _block(source: str, seq: str, b: int, pairs: int, height: int, width: int, data: Path):
     if source == "kitti":
-        from pipeline.cache.kitti_sample import kitti_block
+        from testkit.kitti_sample import kitti_block
 
         blk = kitti_block(data / "kitti_sceneflow2015_000139", pairs, height, width)
         blk.sequence, blk.block_index = seq, b
         return blk
-    from pipeline.cache.demo_scene import street_block
+    from testkit.demo_scene import street_block
 
     return street_block(seq, b, pairs, height, width, with_truth=source == "synthetic-gt")
 

@@ -7,7 +7,7 @@ Two sizes (each in its own process, so peak RSS is that size's):
   only a few steps;
 * ``demo``: what ``make demo`` trains: 2048 points, batch 4, width ×0.5, levels scaled.
 
-The cache is the analytic street of :mod:`pipeline.cache.demo_scene` at 832×256 (≈100 k kept points per
+The cache is the analytic street of :mod:`testkit.demo_scene` at 832×256 (≈100 k kept points per
 cloud after its stand-in filters), written once to ``--workdir``. Loader overhead = mean step time with the
 trainer's DataLoader reading the zarr cache ÷ mean step time on the same batches already in memory
 (target ≤ 1.1). Peak memory: the process's peak RSS (ru_maxrss, includes torch), and tracemalloc's peak of
@@ -47,7 +47,7 @@ PAIRS = 16
 def build_cache(workdir: Path) -> Path:
     """The 832×256 street cache (2 blocks of 8 pairs, with GT flow), reused when present."""
     from pipeline.cache import CacheWriter, cache_root
-    from pipeline.cache.demo_scene import street_block
+    from testkit.demo_scene import street_block
 
     config = {"size": [IMAGE[1], IMAGE[0]], "bench": "train"}
     root = cache_root(workdir, "street", config)

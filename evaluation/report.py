@@ -38,9 +38,9 @@ def provenance() -> dict[str, Any]:
     """Package versions, git revision and command line, saved with every report (DESIGN §1)."""
     import sys
 
-    from training.runtime.rundir import git_revision, package_versions
+    from pipeline.runinfo import git_revision, package_versions
 
-    return {"versions": package_versions(), "git": git_revision(), "argv": sys.argv}
+    return {"versions": package_versions(), "git": git_revision(describe=True), "argv": sys.argv}
 
 
 def write_reports(out_dir: Path, rows: Sequence[dict[str, Any]], details: dict[str, Any], title: str) -> Path:

@@ -7,7 +7,7 @@ wall 14 m ahead and fronto-parallel rectangular panels 4–10 m ahead, and moves
 right per frame (no rotation); one panel moves 0.4 m/frame to the left. Every pixel sees a surface (no
 sky, no ground), 48×160 pixels, ≈7 700 points per cloud; two sequences, 16 pairs.
 
-Why not the street of :mod:`pipeline.cache.demo_scene`: its depth maps show the road, a ramp of depths
+Why not the street of :mod:`testkit.demo_scene`: its depth maps show the road, a ramp of depths
 in the image. The paper's depth-consistency loss (eqs. 7–10) is zero for any point moved onto a pixel of
 D_{t+1} at its own depth, and at the 128-point levels of the tiny net the Chamfer term is dominated by
 its sampling noise (≈1.1 m² at the true flow, the same as for zero flow), so a short training there

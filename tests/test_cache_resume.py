@@ -14,9 +14,9 @@ import pytest
 
 from pipeline.cache import CacheReader, CacheWriter, merge, verify
 from pipeline.cache import block_format
-from pipeline.cache.demo_scene import street_block
 from pipeline.cache.layout import MANIFEST_NAME, block_dir
 from pipeline.errors import InputError
+from testkit.demo_scene import street_block
 
 H, W = 20, 48
 CONFIG = {"size": [W, H], "block_pairs": 2}
@@ -99,7 +99,7 @@ def test_killed_writer_tmp_ignored_by_reader_and_removed_by_next_writer(tmp_path
 import os, signal, sys
 sys.path.insert(0, {str(REPO)!r})
 from pipeline.cache import CacheWriter, block_format
-from pipeline.cache.demo_scene import street_block
+from testkit.demo_scene import street_block
 real = block_format._sharded
 def die(group, name, *a, **k):
     real(group, name, *a, **k)

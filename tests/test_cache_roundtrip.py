@@ -21,9 +21,9 @@ from pipeline.cache import (
     pixel_uv,
     points_from_depth,
 )
-from pipeline.cache.demo_scene import street_block
 from pipeline.errors import ConfigError
 from pipeline.geometry import static_flow
+from testkit.demo_scene import street_block
 
 H, W = 24, 64
 CONFIG = {"size": [W, H], "filters": {"ground_y": 1.15, "max_z": 35.0}}

@@ -7,8 +7,8 @@ import os
 import pytest
 
 from pipeline.cache import CacheWriter
-from pipeline.cache.demo_scene import street_block
 from pipeline.cache.layout import block_dir
+from testkit.demo_scene import street_block
 
 TARGET = 1_000_000  # bytes
 PAIRS = 8
@@ -33,7 +33,7 @@ def test_synthetic_street_with_ground_truth(tmp_path):
 
 
 def test_real_kitti_frames_and_predicted_depth(tmp_path, shared_data):
-    from pipeline.cache.kitti_sample import kitti_block
+    from testkit.kitti_sample import kitti_block
 
     folder = shared_data / "kitti_sceneflow2015_000139"
     if not folder.is_dir():

@@ -62,7 +62,7 @@ def test_short_training_lowers_loss_and_epe_against_the_untrained_net(trained):
     """Why the lr-0 run and not the freshly initialised net in eval mode: at initialisation the batch-norm
     running statistics are mean 0, variance 1, so eval mode does not normalise and the untrained net's
     eval-mode flow is a small constant-ish vector (EPE3D ≈ 0.3 m here, 0.7 m on the street of
-    pipeline.cache.demo_scene) that no training-mode forward ever produced; one training step replaces those
+    testkit.demo_scene) that no training-mode forward ever produced; one training step replaces those
     statistics. The lr-0 run is the same untrained weights with statistics from the same 60 forward passes,
     so the comparison isolates what the gradient steps learned. Measured (seeds 0, 1, 2): EPE3D 0.62/0.59/
     0.67 m trained vs 1.60/2.26/1.30 m untrained; validation loss 0.44/0.46/0.36 vs 1.27/2.34/0.75."""

@@ -9,15 +9,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evaluation.baselines.base import as_cloud, rigid_flow
+from evaluation.baselines.base import as_cloud
+from pipeline import geometry
 
 
 def static_flow(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 static flow of camera-1 ``points`` (metres) under ``pose`` = ``T_{1→2}`` (4×4)."""
+    """(N, 3) float32 static flow of camera-1 ``points`` (metres) under ``pose`` = ``T_{1→2}`` (4×4).
+
+    Computed in float64 by :func:`pipeline.geometry.static_flow`, the function stage one uses.
+    """
     pose = np.asarray(pose, dtype=np.float64)
     if pose.shape != (4, 4):
         raise ValueError(f"pose must have shape (4, 4), got {pose.shape}")
-    return rigid_flow(pose, as_cloud("points", points))
+    return geometry.static_flow(as_cloud("points", points), pose).astype(np.float32)
 
 
 @dataclass

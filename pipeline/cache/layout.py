@@ -7,8 +7,8 @@ A cache root is ``<out>/<dataset>/<config-hash>/`` (:func:`cache_root`) holding
 * ``blocks/<sequence>/<block:05d>/`` — one finished zarr group per block; a block being written lives in
   ``blocks/<sequence>/<block:05d>.tmp-<pid>-<host>/`` until it is complete and renamed into place.
 
-JSON is written canonically (sorted keys, fixed separators) and atomically (temp file + ``os.replace``), so
-a resumed run produces byte-identical files.
+JSON is written canonically (sorted keys, fixed separators, no NaN/inf) and atomically (temp file +
+``os.replace``, :func:`pipeline.jsonio.write_json_atomic`), so a resumed run produces byte-identical files.
 """
 
 from __future__ import annotations
@@ -17,12 +17,14 @@ import hashlib
 import json
 import os
 import re
-import socket
-import subprocess
 from pathlib import Path
 from typing import Any
 
 from pipeline.errors import ConfigError
+# re-exported for the cache modules: temp names, fsync, and the JSON writer, whose defaults (no NaN/inf,
+# indent 1) are the cache's canonical form
+from pipeline.jsonio import fsync_dir, host_name, tmp_suffix, write_json_atomic  # noqa: F401
+from pipeline.runinfo import git_revision
 
 SCHEMA_VERSION = 1
 FORMAT_NAME = "monoflow-stage-one-cache"
@@ -77,18 +79,8 @@ def block_dir(root: Path, sequence: str, block_index: int) -> Path:
     return Path(root) / block_relpath(sequence, block_index)
 
 
-def host_name() -> str:
-    """This machine's name, reduced to path-safe characters (it goes into temp-directory names)."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname()) or "host"
-
-
-def tmp_suffix() -> str:
-    """``.tmp-<pid>-<host>``: marks a directory or file being written by this process."""
-    return f".tmp-{os.getpid()}-{host_name()}"
-
-
 def parse_tmp_name(name: str) -> tuple[str, int, str] | None:
-    """(stem, pid, host) of a temp name made with :func:`tmp_suffix`, or None for any other name."""
+    """(stem, pid, host) of a temp name made with :func:`pipeline.jsonio.tmp_suffix`, or None for any other name."""
     m = _TMP_RE.match(name)
     return (m["stem"], int(m["pid"]), m["host"]) if m else None
 
@@ -97,47 +89,8 @@ def is_block_name(name: str) -> bool:
     return bool(_BLOCK_RE.match(name))
 
 
-def write_json_atomic(path: Path, obj: Any) -> None:
-    """Write ``obj`` as indented canonical JSON via a temp file in the same folder + fsync + ``os.replace``."""
-    path = Path(path)
-    text = json.dumps(obj, sort_keys=True, indent=1, ensure_ascii=True, allow_nan=False) + "\n"
-    tmp = path.with_name(path.name + tmp_suffix())
-    try:
-        with open(tmp, "w", encoding="ascii") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    fsync_dir(path.parent)
-
-
-def fsync_dir(path: Path) -> None:
-    """Make a rename or a new entry in ``path`` durable (no-op where directories cannot be opened)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def code_version() -> dict[str, str | None]:
-    """``{"monoflow": package version, "git": HEAD revision of the source checkout or None}``."""
+    """``{"monoflow": package version, "git": HEAD revision (full hash) of the source checkout or None}``."""
     import pipeline
 
-    rev = None
-    src = Path(pipeline.__file__).resolve().parent.parent
-    if (src / ".git").exists():
-        try:
-            out = subprocess.run(["git", "-C", str(src), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
-            rev = out.stdout.strip() or None if out.returncode == 0 else None
-        except (OSError, subprocess.SubprocessError):
-            rev = None
-    return {"monoflow": pipeline.__version__, "git": rev}
+    return {"monoflow": pipeline.__version__, "git": git_revision()}
