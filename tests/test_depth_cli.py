@@ -55,10 +55,11 @@ def test_presets_toml_and_flags_resolve_in_order(tmp_path: Path):
                                       "--data.root", "R", "--run_dir", "X"])
     cfg = resolve_config(args)
     assert (cfg.steps, cfg.optim.lr, cfg.data.width, cfg.data.height) == (7, 0.002, 192, 64)  # flag > TOML > preset
-    assert (cfg.data.root, cfg.run_dir, cfg.loss.scale_mode, cfg.data.val_sequences) == ("R", "X", "downsample",
-                                                                                           ("last",))
+    assert (cfg.data.root, cfg.run_dir, cfg.loss.pose_antisymmetric, cfg.data.flip, cfg.data.val_sequences) == (
+        "R", "X", True, False, ("last",))  # the preset's departures survive TOML and flags
     plain = resolve_config(build_parser().parse_args(["--data.root", "R"]))
     assert (plain.optim.lr, plain.optim.batch_size, plain.loss.num_scales, plain.data.width) == (1e-4, 4, 1, 416)
+    assert (plain.loss.pose_antisymmetric, plain.data.flip) == (False, True)  # defaults: the released recipe
 
 
 def test_bad_input_is_one_line(tmp_path: Path, capsys):

@@ -107,6 +107,10 @@ def test_relative_errors_rotation_direction_and_scale():
     sideways = np.repeat(pose_vec_to_mat(np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0]))[None], n, axis=0)
     e = relative_errors(gt, sideways)
     assert e["trans_dir_err_deg"] == pytest.approx(90.0) and e["trans_err"] == pytest.approx(1.0)  # best scale 0
+    one_reversed = pred.copy()
+    one_reversed[2, :3, 3] *= -1  # one of six pairs backwards: the mean is 30°, the median stays 0°
+    e = relative_errors(gt, one_reversed)
+    assert e["trans_dir_err_deg"] == pytest.approx(30.0) and e["trans_dir_err_median_deg"] == pytest.approx(0.0, abs=1e-6)
 
 
 def test_kitti_segment_errors_of_a_lateral_drift():

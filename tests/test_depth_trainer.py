@@ -144,3 +144,35 @@ def test_lidar_ground_truth_agrees_with_the_dense_depth(world: Path, tmp_path: P
     good = evaluate_depth(Dense(), [seq], (64, 128), DepthEvalConfig())
     assert good["depth_frames"] == 6 and good["abs_rel"] < 0.05 and good["a1"] > 0.95
     assert evaluate_depth(Constant(), [seq], (64, 128), DepthEvalConfig())["abs_rel"] > 0.2
+
+
+@pytest.fixture(scope="module")
+def world16(tmp_path_factory) -> Path:
+    """One 16-frame training sequence (00) and the 6-frame test sequence (01); 128×64, anti-aliased."""
+    from pipeline.synth import SynthConfig, generate
+
+    root = tmp_path_factory.mktemp("synth16") / "world"
+    generate(SynthConfig(seed=0, width=128, height=64, n_sequences=1, frames=16, test_frames=6, supersample=2,
+                         parked_cars=4, moving_cars=1), root)
+    return root
+
+
+def test_short_cpu_training_lowers_depth_and_pose_error(world16: Path, tmp_path: Path):
+    """150 CPU steps (tiny preset — batch 2, lr 1e-4, no augmentation — plus the demo preset's antisymmetric
+    poses) on sequence 00, scored on the same
+    frames against their ground truth (self-supervision never sees it): median-scaled AbsRel falls by more
+    than 40 % (measured 0.56 → 0.18, δ<1.25 0.27 → 0.70), the rotation error per pair falls (0.13° → 0.09°)
+    and the pose net finds the direction of travel (median translation-direction error 6.9° → 1.3°).
+
+    Not asserted: ATE-5 and the mean direction error. The world drives straight at constant speed, so the
+    untrained seed-0 net's near-constant forward output already scores ATE-5 0.12 m; the trained net gets
+    14 of 15 pairs within 2° but one pair backwards, which dominates those means (ATE-5 0.19 m, mean
+    direction error 6.5° → 13°)."""
+    cfg = _config(world16, tmp_path / "run", 150, log_every=50, loss={"pose_antisymmetric": True},
+                  data={"sequences": ("00",), "val_sequences": ("00",)}, eval={"depth_frames_max": 16})
+    ck = train_depth(cfg)
+    before, after = ck.metrics["initial"], ck.metrics["final"]
+    assert after["val_abs_rel"] < 0.6 * before["val_abs_rel"], (before["val_abs_rel"], after["val_abs_rel"])
+    assert after["val_a1"] > before["val_a1"] + 0.2
+    assert after["val_rot_err_deg"] < 0.85 * before["val_rot_err_deg"]
+    assert after["val_trans_dir_err_median_deg"] < min(before["val_trans_dir_err_median_deg"], 5.0)

@@ -152,3 +152,42 @@ def test_snippet_loss_terms_and_gradients():
         assert float(total.detach()) == pytest.approx(expect, rel=1e-5)
         grads = torch.autograd.grad(total, [vec, disps[1][0], disps[0][3]])
         assert all(float(g.abs().sum()) > 0 for g in grads)
+
+
+def test_antisymmetric_poses_reverse_pairs_and_price_the_symmetric_part():
+    """With ``antisymmetric`` the losses see v(a,b) = (net(a,b) − net(b,a))/2 and −v for the reverse pair; the
+    symmetric remainder (net(a,b) + net(b,a))/2 is returned and weighted into the total. An order-blind net
+    (same output for both orders) thus shows no motion to the warp and pays its whole output as remainder."""
+    from training.depth.data import SnippetBatch
+    from training.depth.trainer import forward_snippets
+
+    class PoseNet(torch.nn.Module):  # v(a, b) = [mean(b) − mean(a), 0, 0.5, 0, 0, 0]·0.01: order-aware x, order-blind z
+        def forward(self, a, b):
+            d = (b - a).mean(dim=(1, 2, 3))
+            return torch.stack([d, 0 * d, 0 * d + 0.5, 0 * d, 0 * d, 0 * d], dim=1) * 0.01
+
+    class DepthNet(torch.nn.Module):
+        def forward(self, x):
+            return torch.ones(x.shape[0], 1, *x.shape[2:])
+
+    images = torch.stack([torch.full((2, 3, 32, 64), v) for v in (0.0, 100.0, 200.0)], dim=1).to(torch.uint8)
+    batch = SnippetBatch(images=images, K=K.expand(2, 3, 3).contiguous(), index=torch.arange(2))
+    plain = forward_snippets(DepthNet(), PoseNet(), batch)
+    anti = forward_snippets(DepthNet(), PoseNet(), batch, antisymmetric=True)
+    assert plain.pose_symmetric is None
+    (t_prev, prev_t), (t_next, next_t) = anti.poses
+    # order-blind z is gone from the warp; the order-aware x survives and flips with the order
+    for T in (t_prev, prev_t, t_next, next_t):
+        assert torch.allclose(T[:, 2, 3], torch.zeros(2), atol=1e-7)
+    torch.testing.assert_close(t_prev[:, 0, 3], -prev_t[:, 0, 3])
+    torch.testing.assert_close(t_next[:, 0, 3], -next_t[:, 0, 3])
+    assert torch.all(t_next[:, 0, 3] > 0) and torch.all(t_prev[:, 0, 3] < 0)  # each later frame is brighter
+    assert torch.allclose(plain.poses[1][0][:, 2, 3], torch.full((2,), 0.005))  # the plain net's z reaches the warp
+    # the remainder: |0.005| in z for every one of the 2B pairs
+    torch.testing.assert_close(anti.pose_symmetric[:, 2], torch.full((4,), 0.005))
+    assert torch.all(anti.pose_symmetric[:, [0, 1, 3, 4, 5]] == 0)
+    cfg = DepthLossConfig(pose_antisymmetric=True, pose_symmetric_weight=2.0)
+    total, terms = snippet_loss(anti, cfg)
+    base, _ = snippet_loss(SnippetInputs(anti.images, anti.disps, anti.poses, anti.K), cfg)
+    assert terms["pose_symmetric"] == pytest.approx(0.005)
+    assert float(total - base) == pytest.approx(2.0 * 0.005, rel=1e-5)

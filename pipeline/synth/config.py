@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, fields
 from pipeline.errors import ConfigError
 
 #: Bumped whenever a change to the generator changes its output for the same config.
-SYNTH_VERSION = "1"
+SYNTH_VERSION = "2"  # 2: mottled asphalt (textures.ground)
 
 #: Native KITTI odometry image size (sequences 04-12) and intrinsics that K is scaled from.
 KITTI_SIZE = (1226, 370)

@@ -40,10 +40,16 @@ def _mix(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def ground(s: np.ndarray, l: np.ndarray, seed: int, fp: np.ndarray) -> np.ndarray:
-    """Road surface at road coordinates (s, l): asphalt, lane markings, parking strip; soil beyond."""
+    """Road surface at road coordinates (s, l): asphalt, lane markings, parking strip; soil beyond.
+
+    The asphalt carries visible metre-scale mottling (wear, repairs, stains), as real roads do: at the small
+    working sizes of self-supervised depth training a near-uniform road gives the photometric loss no
+    signal, and the depth net then learns an infinitely far road (measured: median-scaled AbsRel 0.55 →
+    2.4 in 100 steps with the former ±0.08 grain, 0.55 → 0.3 with this texture).
+    """
     a = np.abs(l)
-    g = 0.24 + 0.16 * (fbm2(s, l, seed, 0.5, 6, gain=0.6, fp=fp) - 0.5)
-    g *= 0.85 + 0.3 * noise2(s * 0.15, l * 0.15, seed + 1)  # large patches (repairs, wear)
+    g = 0.24 + 0.40 * (fbm2(s, l, seed, 0.5, 6, gain=0.6, fp=fp) - 0.5)
+    g *= 0.6 + 0.8 * noise2(s * 0.4, l * 0.4, seed + 1)  # patches of 1–3 m (repairs, wear, stains)
     out = _rgb(g, (0.97, 0.98, 1.04))
     parking = (a >= PARKING_EDGE) & (a < ROAD_HALF_WIDTH)
     out[parking] *= np.array([1.12, 1.08, 1.02])

@@ -185,8 +185,9 @@ def relative_errors(gt_rel: np.ndarray, pred_rel: np.ndarray) -> dict[str, float
     """Per-pair errors of predicted ``T_{k→k+1}`` (N, 4, 4) against the ground truth's, averaged.
 
     rot_err_deg: angle of ``R_gt^T R_pred``; rot_mag_gt_deg / rot_mag_pred_deg: the rotation angles;
-    trans_dir_err_deg: angle between the translations; trans_err: ‖t_gt − s t_pred‖ with one
-    least-squares s over all pairs (metres).
+    trans_dir_err_deg: angle between the translations (trans_dir_err_median_deg: its median, which one
+    reversed pair cannot dominate); trans_err: ‖t_gt − s t_pred‖ with one least-squares s over all pairs
+    (metres).
     """
     Rg, Rp = gt_rel[:, :3, :3], pred_rel[:, :3, :3]
     tg, tp = gt_rel[:, :3, 3], pred_rel[:, :3, 3]
@@ -197,6 +198,7 @@ def relative_errors(gt_rel: np.ndarray, pred_rel: np.ndarray) -> dict[str, float
             "rot_mag_gt_deg": float(np.mean(np.degrees(rotation_angle(Rg)))),
             "rot_mag_pred_deg": float(np.mean(np.degrees(rotation_angle(Rp)))),
             "trans_dir_err_deg": float(np.mean(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))),
+            "trans_dir_err_median_deg": float(np.median(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))),
             "trans_err": float(np.mean(np.linalg.norm(tg - s * tp, axis=1))),
             "pairs": int(len(rot))}
 

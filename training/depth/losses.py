@@ -11,7 +11,9 @@ nets' unknown scale. For a target/reference pair with ``T = T_{t→r}``:
 * valid pixels: the warp lands inside the reference image (and in front of its camera) and, with
   auto-masking, the warped error is below the un-warped (static-scene) error;
 * smoothness: ``mean |∂x d̂| e^{−|∂x I|} + mean |∂y d̂| e^{−|∂y I|}`` with ``d̂ = d / mean(d)`` per image
-  (d the disparity, or the depth as the released code passes).
+  (d the disparity, or the depth as the released code passes);
+* with antisymmetrised poses (not in the released recipe): ``mean ‖(net(a,b) + net(b,a)) / 2‖₁`` of the pose
+  vectors, so that the raw net a checkpoint carries becomes antisymmetric too.
 
 Both losses are summed over both neighbours and both directions (t→r with ``pose_net(t, r)`` and r→t with
 ``pose_net(r, t)``) and over the scales used; smoothness over the three frames at the finest scale.
@@ -105,13 +107,15 @@ class SnippetInputs:
     images: [I_{t−1}, I_t, I_{t+1}], each (B, 3, H, W) in [0, 1];
     disps: per frame, the net's disparities at the scales used (finest first), each (B, 1, h, w);
     poses: per neighbour r ∈ (t−1, t+1): (T_{t→r}, T_{r→t}), each (B, 4, 4);
-    K: (B, 3, 3) intrinsics at the images' size.
+    K: (B, 3, 3) intrinsics at the images' size;
+    pose_symmetric: with antisymmetrised poses, the (2B, 6) symmetric remainders ``(net(a,b) + net(b,a)) / 2``.
     """
 
     images: list[Tensor]
     disps: list[list[Tensor]]
     poses: list[tuple[Tensor, Tensor]]
     K: Tensor
+    pose_symmetric: Tensor | None = None
 
 
 def _full_res(x: Tensor, hw: tuple[int, int]) -> Tensor:
@@ -169,4 +173,8 @@ def snippet_loss(inputs: SnippetInputs, cfg: DepthLossConfig) -> tuple[Tensor, d
     total = cfg.photo_weight * photo + cfg.smooth_weight * smooth + cfg.geometry_weight * geometry
     terms = {"photo": float(photo.detach()), "geometry": float(geometry.detach()), "smooth": float(smooth.detach()),
              "valid_fraction": float(torch.stack(valid_fracs).mean())}
+    if inputs.pose_symmetric is not None:
+        symmetric = inputs.pose_symmetric.abs().sum(-1).mean()
+        total = total + cfg.pose_symmetric_weight * symmetric
+        terms["pose_symmetric"] = float(symmetric.detach())
     return total, terms

@@ -61,8 +61,13 @@ class DepthCheckpoints:
     metrics: dict = field(default_factory=dict)
 
 
-def forward_snippets(depth_net, pose_net, batch: SnippetBatch) -> SnippetInputs:
-    """Run both nets on a batch: every frame through the depth net, four directed pairs through the pose net."""
+def forward_snippets(depth_net, pose_net, batch: SnippetBatch, antisymmetric: bool = False) -> SnippetInputs:
+    """Run both nets on a batch: every frame through the depth net, four directed pairs through the pose net.
+
+    antisymmetric: the losses see ``v(a, b) = (net(a, b) − net(b, a)) / 2`` for each pair and its reverse, so
+    a reversed pair always gets the opposite motion; the symmetric remainder ``(net(a, b) + net(b, a)) / 2``
+    is returned in ``pose_symmetric`` for the loss to drive to zero (see ``DepthLossConfig.pose_antisymmetric``).
+    """
     imgs = batch.images.float()  # (B, 3, 3, H, W), 0..255
     B, F3 = imgs.shape[:2]
     norm = normalize_image(imgs.flatten(0, 1))
@@ -71,11 +76,17 @@ def forward_snippets(depth_net, pose_net, batch: SnippetBatch) -> SnippetInputs:
     disps = [[d.view(B, F3, *d.shape[1:])[:, f] for d in scales] for f in range(F3)]
     n = norm.view(B, F3, *norm.shape[1:])
     tgt, prev, nxt = n[:, 1], n[:, 0], n[:, 2]
-    vec = pose_net(torch.cat([tgt, tgt, prev, nxt]), torch.cat([prev, nxt, tgt, tgt]))
-    T = pose_vec_to_mat(vec.float())
+    vec = pose_net(torch.cat([tgt, tgt, prev, nxt]), torch.cat([prev, nxt, tgt, tgt])).float()
+    symmetric = None
+    if antisymmetric:  # rows: t→t−1, t→t+1 | t−1→t, t+1→t
+        there, back = vec[:2 * B], vec[2 * B:]
+        symmetric = (there + back) / 2
+        half = (there - back) / 2
+        vec = torch.cat([half, -half])
+    T = pose_vec_to_mat(vec)
     poses = [(T[0:B], T[2 * B:3 * B]), (T[B:2 * B], T[3 * B:4 * B])]
     images = [imgs[:, f] / 255.0 for f in range(F3)]
-    return SnippetInputs(images=images, disps=disps, poses=poses, K=batch.K.float())
+    return SnippetInputs(images=images, disps=disps, poses=poses, K=batch.K.float(), pose_symmetric=symmetric)
 
 
 def freeze_unused(depth_model: DispResNet, pose_model: PoseResNet, num_scales: int) -> list[str]:
@@ -208,7 +219,7 @@ class DepthTrainer:
         t0 = time.perf_counter()
         self.depth_net.train()
         self.pose_net.train()
-        inputs = forward_snippets(self.depth_net, self.pose_net, batch.to(self.device))
+        inputs = forward_snippets(self.depth_net, self.pose_net, batch.to(self.device), self.cfg.loss.pose_antisymmetric)
         total, terms = snippet_loss(inputs, self.cfg.loss)
         t1 = time.perf_counter()
         if not torch.isfinite(total):
@@ -232,7 +243,8 @@ class DepthTrainer:
         bs = self.cfg.optim.batch_size
         for start in range(0, len(picks), bs):
             batch = collate([self.val_set[int(p)] for p in picks[start:start + bs]]).to(self.device)
-            total, terms = snippet_loss(forward_snippets(self.depth_model, self.pose_model, batch), self.cfg.loss)
+            inputs = forward_snippets(self.depth_model, self.pose_model, batch, self.cfg.loss.pose_antisymmetric)
+            total, terms = snippet_loss(inputs, self.cfg.loss)
             for k, v in {"loss": float(total), **terms}.items():
                 sums[k] = sums.get(k, 0.0) + v * batch.images.shape[0]
         return {f"val_{k}": v / len(picks) for k, v in sums.items()}
