@@ -70,7 +70,8 @@ def _run(args) -> int:
         for when in ("initial", "final"):
             m = ckpts.metrics.get(when) or {}
             print(f"  depth/pose validation, {when}: AbsRel {m.get('val_abs_rel', float('nan')):.3f}, "
-                  f"ATE-5 {m.get('val_ate', float('nan')):.3f} m, rotation error "
+                  f"ATE-5 {m.get('val_ate', float('nan')):.3f} m, translation direction error "
+                  f"{m.get('val_trans_dir_err_deg', float('nan')):.2f} deg, rotation error "
                   f"{m.get('val_rot_err_deg', float('nan')):.3f} deg", flush=True)
         pcfg = PreprocessConfig(root=str(world), depth="net", pose="net", depth_checkpoint=str(ckpts.disp),
                                 pose_checkpoint=str(ckpts.pose), size=size, out=str(out / "cache"),
