@@ -9,30 +9,17 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 
+from _depth_fixtures import depth_world, one_thread  # noqa: F401  (one_thread: autouse fixture)
 from pipeline.nets import load_depth_net, load_pose_net
 from training.depth.cli import build_parser, main, resolve_config
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def world(tmp_path_factory) -> Path:
-    from pipeline.synth import SynthConfig, generate
-
-    root = tmp_path_factory.mktemp("synth") / "world"
-    generate(SynthConfig(seed=1, width=128, height=64, n_sequences=1, frames=6, test_frames=4, supersample=2,
-                         parked_cars=3, moving_cars=1), root)
-    return root
+    return depth_world(tmp_path_factory.mktemp("synth") / "world", frames=6, test_frames=4, seed=1, parked_cars=3)
 
 
 def _env() -> dict[str, str]:

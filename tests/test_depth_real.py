@@ -9,22 +9,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
+from _depth_fixtures import one_thread  # noqa: F401  (autouse fixture)
 from pipeline.kitti.poses import read_poses, write_poses
 from training.depth.config import replace, tiny_config
 from training.depth.trainer import train_depth
 
 GRAY = "kitti_odometry_06_gray"
 N_FRAMES = 8
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from _depth_fixtures import depth_world, one_thread  # noqa: F401  (one_thread: autouse fixture)
 from pipeline.nets import DepthPoseRunner, load_depth_net, load_pose_net, normalize_image
 from training.depth.config import replace, tiny_config
 from training.depth.trainer import (
@@ -24,23 +25,10 @@ from training.depth.trainer import (
 from training.runtime.checkpoints import load_checkpoint
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def world(tmp_path_factory) -> Path:
     """Sequence 00 (8 frames) for training, 01 (6 frames, the test sequence) for validation; 128×64, anti-aliased."""
-    from pipeline.synth import SynthConfig, generate
-
-    root = tmp_path_factory.mktemp("synth") / "world"
-    generate(SynthConfig(seed=0, width=128, height=64, n_sequences=1, frames=8, test_frames=6, supersample=2,
-                         parked_cars=4, moving_cars=1), root)
-    return root
+    return depth_world(tmp_path_factory.mktemp("synth") / "world", frames=8, test_frames=6)
 
 
 def _config(world: Path, run: Path, steps: int, **sections):
@@ -149,12 +137,7 @@ def test_lidar_ground_truth_agrees_with_the_dense_depth(world: Path, tmp_path: P
 @pytest.fixture(scope="module")
 def world16(tmp_path_factory) -> Path:
     """One 16-frame training sequence (00) and the 6-frame test sequence (01); 128×64, anti-aliased."""
-    from pipeline.synth import SynthConfig, generate
-
-    root = tmp_path_factory.mktemp("synth16") / "world"
-    generate(SynthConfig(seed=0, width=128, height=64, n_sequences=1, frames=16, test_frames=6, supersample=2,
-                         parked_cars=4, moving_cars=1), root)
-    return root
+    return depth_world(tmp_path_factory.mktemp("synth16") / "world", frames=16, test_frames=6)
 
 
 def test_short_cpu_training_lowers_depth_and_pose_error(world16: Path, tmp_path: Path):
