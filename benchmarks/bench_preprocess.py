@@ -34,8 +34,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -166,28 +164,18 @@ def bytes_per_pair(args, workdir: Path) -> dict:
     s = run_preprocess(cfg)
     out["synthetic_832x256_gt_16_pairs"] = {"bytes_per_pair": round(s.bytes_per_pair), "pairs": s.pairs,
                                             "note": "includes the ground-truth flow arrays"}
-    sf = SHARED / "kitti_sceneflow2015_000139"
-    if sf.is_dir():
-        out["kitti2015_139_832x256"] = _kitti_bytes(sf, workdir)
+    if (SHARED / "kitti_sceneflow2015_000139").is_dir():
+        out["kitti2015_139_832x256"] = _kitti_bytes(workdir)
     return out
 
 
-def _kitti_bytes(sf: Path, workdir: Path) -> dict:
+def _kitti_bytes(workdir: Path) -> dict:
     """Real frames + published disparities at 832x256: bytes of the frame arrays and of one pair's arrays."""
     from pipeline.cache.block_format import open_block_group
-    from pipeline.kitti.calib import read_raw_cam_to_cam, write_odometry_calib
     from pipeline.preprocess import PreprocessConfig, run_preprocess
+    from testkit.kitti_sample import scene139_odometry_tree
 
-    raw = read_raw_cam_to_cam(SHARED / "kitti_raw_calib_2011_09_26/2011_09_26_calib/2011_09_26/calib_cam_to_cam.txt")
-    seq = workdir / "kitti2015" / "sequences" / "139"
-    if not seq.exists():
-        (seq / "image_2").mkdir(parents=True)
-        (seq / "disp_2").mkdir()
-        for k, frame in enumerate(("10", "11")):
-            shutil.copy(sf / f"kitti_img/image_2/000139_{frame}.png", seq / f"image_2/{k:06d}.png")
-        shutil.copy(sf / "results/disp_0/000139_10.png", seq / "disp_2/000000.png")
-        shutil.copy(sf / "results/disp_1/000139_10.png", seq / "disp_2/000001.png")
-        write_odometry_calib(seq / "calib.txt", {"P0": raw.P_rect["00"], "P2": raw.P_rect["02"]})
+    scene139_odometry_tree(SHARED, workdir / "kitti2015")
     shutil.rmtree(workdir / "cache_bytes_kitti", ignore_errors=True)
     cfg = PreprocessConfig(root=str(workdir / "kitti2015"), depth="disparity", pose="net", random_init=True,
                            size="832x256", device="cpu", out=str(workdir / "cache_bytes_kitti"), progress=False)

@@ -124,9 +124,10 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise InputError(path, f"not valid TOML ({exc})") from None
 
 
-def build_config(cls, args: argparse.Namespace, config_file: str | Path | None = None):
-    """Resolve ``cls`` from defaults < TOML ``config_file`` < flags set in ``args``."""
-    values: dict[str, Any] = {}
+def build_config(cls, args: argparse.Namespace, config_file: str | Path | None = None, base=None):
+    """Resolve ``cls`` from defaults (or the ``base`` instance, e.g. a preset) < TOML ``config_file`` < flags
+    set in ``args``."""
+    values: dict[str, Any] = _flatten(dataclasses.asdict(base)) if base is not None else {}
     source = "flags"
     if config_file:
         values.update(load_toml(config_file))

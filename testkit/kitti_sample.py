@@ -1,4 +1,5 @@
-"""A cache block made from real KITTI data (for measuring sizes honestly; tests and benchmark only).
+"""Real KITTI 2015 scene 000139 for tests and benchmarks: a cache block (to measure sizes honestly) and a
+KITTI-odometry-layout folder that stage one reads with ``depth="disparity"``.
 
 Uses ``shared/data/kitti_sceneflow2015_000139``: the two colour frames of KITTI 2015 scene 000139 and
 Self-Mono-SF's *predicted* disparities for them (a real monocular net's depth, with its real texture),
@@ -7,6 +8,7 @@ resized to the working size. Depth = fx · 0.54 m / disparity (KITTI's stereo ba
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -58,3 +60,26 @@ def kitti_block(folder: Path, pairs_per_block: int = 8, height: int = 256, width
         for k in range(pairs_per_block)
     ]
     return BlockRecord("kitti_000139", 0, K, frames, pairs)
+
+
+def scene139_odometry_tree(shared_data: Path, root: Path) -> Path:
+    """``root/sequences/139``: the scene's two colour frames as ``image_2/00000{0,1}.png``, its published
+    disparities as ``disp_2/`` (frame 1 gets ``disp_1``, the t+1 disparity of frame 0's pixels — a stand-in,
+    not a true frame-11 map) and ``calib.txt`` (P0, P2 of the 2011_09_26 raw calibration). Returns ``root``;
+    an existing sequence folder is left as it is."""
+    from pipeline.kitti.calib import read_raw_cam_to_cam, write_odometry_calib
+
+    sf = Path(shared_data) / "kitti_sceneflow2015_000139"
+    seq = Path(root) / "sequences" / "139"
+    if seq.exists():
+        return Path(root)
+    raw = read_raw_cam_to_cam(Path(shared_data) / "kitti_raw_calib_2011_09_26/2011_09_26_calib/2011_09_26/"
+                              "calib_cam_to_cam.txt")
+    (seq / "image_2").mkdir(parents=True)
+    (seq / "disp_2").mkdir()
+    for k, frame in enumerate(("10", "11")):
+        shutil.copy(sf / f"kitti_img/image_2/000139_{frame}.png", seq / f"image_2/{k:06d}.png")
+    shutil.copy(sf / "results/disp_0/000139_10.png", seq / "disp_2/000000.png")
+    shutil.copy(sf / "results/disp_1/000139_10.png", seq / "disp_2/000001.png")
+    write_odometry_calib(seq / "calib.txt", {"P0": raw.P_rect["00"], "P2": raw.P_rect["02"]})
+    return Path(root)

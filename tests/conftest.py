@@ -1,4 +1,4 @@
-"""Shared test fixtures: paths to the real KITTI samples beside the checkout."""
+"""Shared test fixtures: paths to the real KITTI samples beside the checkout, and a small synthetic world."""
 
 from __future__ import annotations
 
@@ -16,3 +16,13 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real KITTI samples not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def synth_root(tmp_path_factory) -> Path:
+    """A small synthetic world (208×64, one 9-frame sequence, seed 0), written once per test session."""
+    from pipeline.synth import SynthConfig, generate
+
+    root = tmp_path_factory.getbasetemp() / "synth_w208_h64_s0_f9"
+    generate(SynthConfig(seed=0, width=208, height=64, n_sequences=1, frames=9, test_frames=0), root)
+    return root

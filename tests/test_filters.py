@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
 from pipeline.cache.points import canonical_depth, points_from_depth
 from pipeline.filters import (
@@ -20,17 +19,6 @@ from pipeline.filters import (
 from pipeline.geometry import se3_inverse, transform_points
 from pipeline.pairs import build_pair, valid_pixels
 
-SYNTH = dict(seed=0, width=208, height=64, n_sequences=1, frames=9, test_frames=0)
-
-
-@pytest.fixture(scope="session")
-def synth_root(tmp_path_factory):
-    """A small synthetic world, shared by every test file that asks for the same config."""
-    from pipeline.synth import SynthConfig, generate
-
-    root = tmp_path_factory.getbasetemp() / "synth_w208_h64_s0_f9"
-    generate(SynthConfig(**SYNTH), root)
-    return root
 
 
 # --------------------------------------------------------------------------- ground / far

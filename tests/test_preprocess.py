@@ -17,16 +17,6 @@ from pipeline.cli import main
 from pipeline.preprocess import PreprocessConfig, plan_blocks, run_preprocess, sequence_pairs
 from pipeline.scale import ScaleConfig
 
-SYNTH = dict(seed=0, width=208, height=64, n_sequences=1, frames=9, test_frames=0)
-
-
-@pytest.fixture(scope="session")
-def synth_root(tmp_path_factory):
-    from pipeline.synth import SynthConfig, generate
-
-    root = tmp_path_factory.getbasetemp() / "synth_w208_h64_s0_f9"
-    generate(SynthConfig(**SYNTH), root)
-    return root
 
 
 @pytest.fixture(scope="session")

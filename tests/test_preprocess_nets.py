@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_preprocess import gt_config, synth_root  # noqa: F401
+from test_preprocess import gt_config
 
 from pipeline.preprocess import run_preprocess
 

@@ -3,7 +3,7 @@ error in a worker stops the run with the same one-line message, leaving no parti
 
 from __future__ import annotations
 
-from test_preprocess import check_corrupt_png_stops_cleanly, gt_config, synth_root, tree_bytes  # noqa: F401
+from test_preprocess import check_corrupt_png_stops_cleanly, gt_config, tree_bytes
 
 from pipeline.preprocess import run_preprocess
 

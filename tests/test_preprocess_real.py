@@ -6,7 +6,6 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
-import pytest
 
 from pipeline.preprocess import PreprocessConfig, run_preprocess
 from pipeline.scale import ScaleConfig
@@ -68,19 +67,10 @@ def test_kitti_2015_scene_139_external_disparity(shared_data, tmp_path):
     """
     from pipeline.cache import CacheReader
     from pipeline.cache.points import canonical_depth
-    from pipeline.kitti.calib import read_raw_cam_to_cam, write_odometry_calib
     from pipeline.kitti.png16 import read_disparity_png
+    from testkit.kitti_sample import scene139_odometry_tree
 
-    sf = shared_data / "kitti_sceneflow2015_000139"
-    raw = read_raw_cam_to_cam(shared_data / "kitti_raw_calib_2011_09_26/2011_09_26_calib/2011_09_26/calib_cam_to_cam.txt")
-    seq = tmp_path / "kitti2015" / "sequences" / "139"
-    (seq / "image_2").mkdir(parents=True)
-    (seq / "disp_2").mkdir()
-    for k, frame in enumerate(("10", "11")):
-        shutil.copy(sf / f"kitti_img/image_2/000139_{frame}.png", seq / f"image_2/{k:06d}.png")
-    shutil.copy(sf / "results/disp_0/000139_10.png", seq / "disp_2/000000.png")
-    shutil.copy(sf / "results/disp_1/000139_10.png", seq / "disp_2/000001.png")
-    write_odometry_calib(seq / "calib.txt", {"P0": raw.P_rect["00"], "P2": raw.P_rect["02"]})
+    seq = scene139_odometry_tree(shared_data, tmp_path / "kitti2015") / "sequences" / "139"
 
     cfg = PreprocessConfig(root=str(tmp_path / "kitti2015"), depth="disparity", disparity_baseline=0.54,
                            pose="net", random_init=True, size="native", device="cpu",

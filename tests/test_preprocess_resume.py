@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_preprocess import synth_root, tree_bytes  # noqa: F401
+from test_preprocess import tree_bytes
 
 REPO = Path(__file__).resolve().parents[1]
 

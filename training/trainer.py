@@ -21,7 +21,6 @@ metres at the finest level and the total loss on the held-out pairs); ``config.j
 from __future__ import annotations
 
 import math
-import random
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -150,11 +149,7 @@ class Trainer:
             torch.set_num_threads(cfg.threads)
         self.device = resolve_device(cfg.device)
         self.dist = distributed.init_distributed(self.device)
-        if cfg.deterministic:
-            torch.use_deterministic_algorithms(True, warn_only=True)
-        random.seed(cfg.seed)
-        np.random.seed(cfg.seed)
-        torch.manual_seed(cfg.seed)
+        checkpoints.seed_all(cfg.seed, cfg.deterministic)
         self.run_dir = Path(cfg.run_dir)
         self.reader = CacheReader(cfg.cache)
         self.train_idx, self.val_idx = self._split()

@@ -42,33 +42,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out: dict = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def resolve_config(args: argparse.Namespace):
     """The run's :class:`DepthTrainConfig`: preset (or defaults) < TOML < flags."""
-    from dataclasses import asdict, fields
-
-    from pipeline.options import build_config, config_from_dict, load_toml
+    from pipeline.options import build_config
     from training.depth.config import DepthTrainConfig, demo_config, tiny_config
 
-    if not args.preset:
-        return build_config(DepthTrainConfig, args, args.config)
-    base = DepthTrainConfig()
-    preset = (demo_config if args.preset == "demo" else tiny_config)(base.data.root, base.run_dir)
-    values = _flatten(asdict(preset))
-    if args.config:
-        values.update(load_toml(args.config))
-    top = {f.name for f in fields(DepthTrainConfig)}
-    values.update({k: v for k, v in vars(args).items() if v is not None and ("." in k or k in top)})
-    return config_from_dict(DepthTrainConfig, values)
+    preset = None
+    if args.preset:
+        base = DepthTrainConfig()
+        preset = (demo_config if args.preset == "demo" else tiny_config)(base.data.root, base.run_dir)
+    return build_config(DepthTrainConfig, args, args.config, base=preset)
 
 
 def _checkpoint_paths(args, cfg) -> tuple[str, str]:

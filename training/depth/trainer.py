@@ -118,10 +118,7 @@ class DepthTrainer:
             raise ConfigError(f"steps must be >= 0, got {cfg.steps}")
         self.device = resolve_device(cfg.device)
         self.dist = distributed.init_distributed(self.device)
-        if cfg.deterministic:
-            torch.use_deterministic_algorithms(True, warn_only=True)
-        torch.manual_seed(cfg.seed)
-        np.random.seed(cfg.seed)
+        checkpoints.seed_all(cfg.seed, cfg.deterministic)
         self.run_dir = Path(cfg.run_dir)
 
         train_ids, val_ids = resolve_splits(cfg.data)

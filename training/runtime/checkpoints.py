@@ -18,6 +18,18 @@ from pipeline.errors import InputError
 CHECKPOINT_VERSION = 1
 
 
+def seed_all(seed: int, deterministic: bool = False) -> None:
+    """Seed the Python, numpy and torch RNGs (the ones :func:`rng_state` saves); ``deterministic`` also asks
+    torch for deterministic kernels (warning, not failing, where it has none)."""
+    import torch
+
+    if deterministic:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
 def rng_state() -> dict[str, Any]:
     """Python, numpy and torch (CPU, and CUDA when present) RNG states."""
     import torch
