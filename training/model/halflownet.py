@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from pipeline.errors import ConfigError, InputError
 from training.knn import BACKENDS
 from training.model.cost_volume import AttentiveCostVolume
+from training.model.ego_motion import rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
@@ -56,6 +57,12 @@ class HALFlowConfig:
     set_conv_pooling: "max" (HALFlowNet) | "attentive".
     batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
     center_input: shift both clouds by pc1's mean before the net (the released port does).
+    ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
+        that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
+        false = the paper's per-point flow regressor. A departure from the paper (README).
+    ego_sigma: metres; the flow residual against the fitted ego-motion at which a point counts half
+        static, half moving (Cauchy scale of the re-weighting and of the gate).
+    ego_iterations: re-weighting rounds of the robust rigid fit.
     """
 
     n_points: int = 8192
@@ -72,6 +79,9 @@ class HALFlowConfig:
     set_conv_pooling: str = "max"
     batch_norm: bool = True
     center_input: bool = True
+    ego_head: bool = False
+    ego_sigma: float = 0.25
+    ego_iterations: int = 4
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -96,6 +106,8 @@ class HALFlowConfig:
             raise ConfigError(f"feature_dim must be >= 0, got {self.feature_dim}")
         if self.knn_backend not in BACKENDS:
             raise ConfigError(f"knn_backend must be one of {BACKENDS}, got {self.knn_backend!r}")
+        if not self.ego_sigma > 0 or self.ego_iterations < 1:
+            raise ConfigError(f"need ego_sigma > 0 and ego_iterations >= 1, got {self.ego_sigma}, {self.ego_iterations}")
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
 
@@ -196,6 +208,14 @@ class HALFlowNet(nn.Module):
         self.head0 = FlowHead(self.fc0.out_channels)
 
     # ------------------------------------------------------------------ helpers
+
+    def _ego(self, xyz: Tensor, flow: Tensor) -> Tensor:
+        """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on."""
+        cfg = self.config
+        if not cfg.ego_head:
+            return flow
+        out, *_ = rigid_plus_residual(xyz.float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations)
+        return out.to(flow.dtype)
 
     def _down(
         self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
@@ -327,7 +347,7 @@ class HALFlowNet(nn.Module):
         coarse = self.head3_coarse(up)
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow = coarse + self.head3(hidden)
+        flow = self._ego(xyz1_3, coarse + self.head3(hidden))
         flows = [flow]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
@@ -338,13 +358,13 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow = coarse + head(hidden)
+            flow = self._ego(xyz, coarse + head(hidden))
             flows.insert(0, flow)
 
         # L0: propagate L1's refinement features, residual on the interpolated L1 flow.
         hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
         coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
-        flows.insert(0, coarse + self.head0(hidden))
+        flows.insert(0, self._ego(p1.xyz[0], coarse + self.head0(hidden)))
 
         idx1, idx2 = p1.idx[:4], p2.idx[:4]
         return FlowOutput(

@@ -1,0 +1,155 @@
+"""Learning curves of the scene-flow net: train once, score snapshots on held-out test splits.
+
+Trains one run in chunks (``--steps 500,1000,2000``: resumes the same run to each milestone, which the
+trainer makes bit-identical to an uninterrupted run on the CPU), keeps a snapshot per milestone and
+scores it with the evaluation protocol on every ``--split`` (EPE3D overall, static and moving points, in
+metres), next to the label-free checkpoint-selection signals the trainer logs (validation loss at the
+finest level and over all levels). The registration baselines are scored once per split on the same
+points. Results go to ``<out>/curve.csv`` and ``curve.json`` and are printed as a table.
+
+Example (the demo's settings, 4x its steps)::
+
+    python -m benchmarks.learning_curve --cache cache/demo/cache/synthetic/<hash> \\
+        --split demo=cache/demo/world/sceneflow/flownet3d --out runs/curve --steps 500,1000,2000
+
+Extra training options go after ``--set`` as dotted ``key=value`` pairs (``--set model.ego_head=false``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+
+
+def _coerce(text: str):
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if "," in text:
+        return tuple(_coerce(t) for t in text.split(","))
+    return text
+
+
+def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scale: float = 0.5, seed: int = 0,
+                      overrides: dict | None = None):
+    """The demo's :class:`~training.config.TrainConfig` (``scripts/demo.py``), with dotted overrides."""
+    from evaluation.ablations import level_points_for
+    from pipeline.options import config_from_dict
+    from training.config import TrainConfig
+
+    base = {"cache": cache, "run_dir": run_dir, "seed": seed, "progress": False,
+            "data": {"n_points": n_points, "workers": 0, "colour_features": False},
+            "optim": {"batch_size": 4},
+            "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)),
+                      "width_scale": width_scale}}
+    for key, value in (overrides or {}).items():
+        node = base
+        *path, leaf = key.split(".")
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = list(value) if isinstance(value, tuple) else value
+    return config_from_dict(TrainConfig, base)
+
+
+def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int, seeds=(0,)) -> dict:
+    """``{split: {method: summary row}}`` under the paper protocol at the net's point counts."""
+    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+
+    cfg = ProtocolConfig(protocol="paper", n_points=n_points, n_score=n_score, seeds=tuple(seeds), warmup=False)
+    out = {}
+    for name, split in splits.items():
+        rows = summary_rows(run_protocol(split, methods, cfg, progress=False))
+        out[name] = {r["method"]: r for r in rows}
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="learning_curve", description=__doc__.split("\n\n")[0])
+    p.add_argument("--cache", required=True, help="stage-one cache folder")
+    p.add_argument("--split", action="append", required=True, help="NAME=FOLDER of a FlowNet3D-format test split")
+    p.add_argument("--out", required=True, help="run folder (resumes when it exists)")
+    p.add_argument("--steps", default="500,1000,2000", help="comma list of milestones (optimiser steps)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-points", type=int, default=2048)
+    p.add_argument("--width-scale", type=float, default=0.5)
+    p.add_argument("--baselines", default="icp-p2p,fgr", help="scored once per split ('' for none)")
+    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
+    args = p.parse_args(argv)
+
+    import torch
+
+    from evaluation.methods import NetMethod, make_baseline
+    from evaluation.readers import load_split
+    from training.trainer import Trainer
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    overrides = dict(kv.split("=", 1) for kv in args.set)
+    overrides = {k: _coerce(v) for k, v in overrides.items()}
+    splits = {}
+    for item in args.split:
+        name, folder = item.split("=", 1)
+        splits[name] = load_split(folder, "auto")
+    milestones = sorted(int(s) for s in args.steps.split(","))
+    run_dir = out / "run"
+    rows: list[dict] = []
+    cfg = None
+    for m in milestones:
+        cfg = demo_train_config(args.cache, str(run_dir), args.n_points, args.width_scale, args.seed, overrides)
+        cfg.steps, cfg.val_every, cfg.ckpt_every, cfg.log_every = m, 100, 100, 50
+        snap = out / f"step_{m:06d}.pt"
+        if not snap.exists():
+            trainer = Trainer(cfg, resume=True)
+            try:
+                trainer.fit()
+            finally:
+                trainer.close()
+            shutil.copyfile(run_dir / "latest.pt", snap)
+        net = NetMethod(snap, name="ours")
+        scores = score_splits([net], splits, cfg.data.n_points, cfg.model.level_points[0])
+        row = {"step": m}
+        for split_name, by_method in scores.items():
+            r = by_method["ours"]
+            for key in ("EPE3D", "EPE3D_static", "EPE3D_moving", "Acc3DS", "Outliers3D"):
+                if key in r:
+                    row[f"{split_name}/{key}"] = r[key]
+        val = [json.loads(line) for line in (run_dir / "val.jsonl").read_text().splitlines() if line.strip()]
+        at = [v for v in val if v["step"] == m]
+        if at:
+            row.update({k: v for k, v in at[-1].items() if k != "step"})
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    base_file = out / "baselines.json"
+    names = [b for b in args.baselines.split(",") if b]
+    if names and not base_file.exists() and cfg is not None:
+        scores = score_splits([make_baseline(b) for b in names], splits, cfg.data.n_points, cfg.model.level_points[0])
+        base_file.write_text(json.dumps(scores, indent=1))
+    baselines = json.loads(base_file.read_text()) if base_file.exists() else {}
+    keys = sorted({k for r in rows for k in r})
+    with open(out / "curve.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    (out / "curve.json").write_text(json.dumps({"rows": rows, "baselines": baselines,
+                                                "config": asdict(cfg) if cfg else None}, indent=1))
+    for split_name, by_method in baselines.items():
+        for name, r in by_method.items():
+            print(f"{split_name} {name}: EPE3D {r['EPE3D']:.4f} static {r.get('EPE3D_static', float('nan')):.4f} "
+                  f"moving {r.get('EPE3D_moving', float('nan')):.4f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
