@@ -27,6 +27,12 @@ class DataConfig:
         count as invalid and the points landing there are masked. False = the whole depth map (the
         released code). Without it, a point can satisfy depth consistency by sliding onto the road, which
         the ground filter removed from pc2 (see the note in BENCHMARKS.md / the trainer tests).
+    lidar_rings: probability per training pair of keeping only points near LiDAR-like scan rings
+        (:mod:`training.augment`); 0 = off.
+    ring_band: share of a ring spacing (0.3–0.5°) that a ring keeps (0.5 keeps about half the points).
+    density_drop: frame t+1 loses a random share of up to this fraction of its points; 0 = off.
+    ground_jitter_m: metres; both frames lose points below a cut drawn up to this far above the lowest
+        points, as a test split's height-threshold ground removal would; 0 = off.
     """
 
     n_points: int = 8192
@@ -37,6 +43,15 @@ class DataConfig:
     jitter_m: float = 0.0
     workers: int = 2
     depth2_kept_only: bool = False
+    lidar_rings: float = 0.0
+    ring_band: float = 0.5
+    density_drop: float = 0.0
+    ground_jitter_m: float = 0.0
+
+    def augment(self) -> dict:
+        """The keyword arguments of :func:`training.augment.augment_masks` for training pairs."""
+        return {"lidar_rings": self.lidar_rings, "ring_band": self.ring_band, "density_drop": self.density_drop,
+                "ground_jitter_m": self.ground_jitter_m}
 
 
 @dataclass

@@ -17,6 +17,7 @@ from torch import Tensor
 
 from pipeline import geometry
 from pipeline.errors import ConfigError, InputError
+from training.augment import augment_masks
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -94,7 +95,7 @@ class PairDataset(torch.utils.data.Dataset):
 
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
-                 depth2_kept_only: bool = False) -> None:
+                 depth2_kept_only: bool = False, augment: dict | None = None) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -103,6 +104,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.jitter_deg = jitter_deg
         self.jitter_m = jitter_m
         self.depth2_kept_only = depth2_kept_only
+        self.augment = dict(augment or {})  # keyword arguments of training.augment.augment_masks
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -120,8 +122,14 @@ class PairDataset(torch.utils.data.Dataset):
             raise InputError(getattr(self.reader, "root", "cache"), f"pair {i} has an empty cloud "
                              f"({len(s.pc1)} frame-t, {len(s.pc2)} frame-t+1 points)")
         rng = np.random.default_rng([self.seed, self.epoch - _VAL_EPOCH, i])  # validation draws use tag 0
-        c1 = _choose(rng, len(s.pc1), self.n_points)
-        c2 = _choose(rng, len(s.pc2), self.n_points)
+        a = self.augment
+        if a and (a.get("lidar_rings", 0) > 0 or a.get("density_drop", 0) > 0 or a.get("ground_jitter_m", 0) > 0):
+            keep1, keep2 = augment_masks(rng, s.pc1, s.pc2, **a)
+            k1, k2 = np.flatnonzero(keep1), np.flatnonzero(keep2)
+            c1, c2 = k1[_choose(rng, len(k1), self.n_points)], k2[_choose(rng, len(k2), self.n_points)]
+        else:
+            c1 = _choose(rng, len(s.pc1), self.n_points)
+            c2 = _choose(rng, len(s.pc2), self.n_points)
         pc1 = s.pc1[c1].astype(np.float32)
         sf = s.static_flow[c1].astype(np.float32)
         if self.jitter_deg > 0 or self.jitter_m > 0:

@@ -128,6 +128,11 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.data.n_points < cfg.model.level_points[0]:
         raise ConfigError(f"data.n_points {cfg.data.n_points} < model.level_points[0] {cfg.model.level_points[0]}: "
                           "set --model.n_points/--model.level_points to match the points drawn")
+    d = cfg.data
+    if not (0 <= d.lidar_rings <= 1 and 0 < d.ring_band <= 1 and 0 <= d.density_drop < 1 and d.ground_jitter_m >= 0):
+        raise ConfigError("need 0 <= data.lidar_rings <= 1, 0 < data.ring_band <= 1, 0 <= data.density_drop < 1 and "
+                          f"data.ground_jitter_m >= 0, got {d.lidar_rings}, {d.ring_band}, {d.density_drop}, "
+                          f"{d.ground_jitter_m}")
     for name in ("log_every", "val_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
@@ -155,7 +160,8 @@ class Trainer:
         self.train_idx, self.val_idx = self._split()
         d = cfg.data
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
-                                     d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only)
+                                     d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
+                                     augment=d.augment())
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only)
         self.steps = self._total_steps()

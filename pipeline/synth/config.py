@@ -52,6 +52,8 @@ class SynthConfig:
     lidar_range: float = 120.0
     camera_range: float = 250.0  # surfaces beyond are sky (16-bit depth PNGs hold < 256 m)
     supersample: int = 1  # colour samples per pixel side (anti-aliasing); depth and flow use pixel centres
+    variety: float = 0.0  # 0..1: each training sequence draws its own camera, driving and traffic (synth.variety)
+    ego_stop: bool = False  # the ego car brakes to a near stop mid-sequence and pulls away again
 
     def validate(self) -> "SynthConfig":
         """Raise :class:`ConfigError` for options that make no sense; return self."""
@@ -77,6 +79,8 @@ class SynthConfig:
             raise ConfigError("LiDAR azimuth steps must be > 0 and lidar_beams >= 1")
         if self.camera_range >= 256.0 or self.camera_range <= 0:
             raise ConfigError("camera_range must lie in (0, 256) m (16-bit depth PNG)")
+        if not 0.0 <= self.variety <= 1.0:
+            raise ConfigError(f"variety must lie in [0, 1], got {self.variety}")
         if self.supersample < 1 or self.focal_scale <= 0 or self.fps <= 0 or self.min_turn_radius < 50:
             raise ConfigError("need supersample >= 1, focal_scale > 0, fps > 0, min_turn_radius >= 50")
         return self

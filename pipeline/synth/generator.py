@@ -37,6 +37,7 @@ from pipeline.errors import InputError
 from pipeline.synth.config import SYNTH_VERSION, SynthConfig
 from pipeline.synth.rig import make_rig
 from pipeline.synth.sceneflow_export import write_pair, write_readme
+from pipeline.synth.variety import sequence_config
 from pipeline.synth.sequence import FrameResult, SequenceJob, generate_frame, write_sequence_files
 from pipeline.synth.world import build_world
 from pipeline.synth.writer import write_json
@@ -149,11 +150,12 @@ def generate(config: SynthConfig, root: str | os.PathLike, *, force: bool = Fals
 
 
 def _write_world(cfg: SynthConfig, out: Path, workers: int) -> dict:
-    rig = make_rig(cfg)
     jobs: list[SequenceJob] = []
     for index, (name, n_frames, split) in enumerate(cfg.sequence_names()):
-        world = build_world(cfg, index, n_frames)
-        job = SequenceJob(name, world, rig, cfg, out / "sequences" / name, want_scan_gt=split == "test")
+        seq_cfg = sequence_config(cfg, index, split)
+        world = build_world(seq_cfg, index, n_frames)
+        job = SequenceJob(name, world, make_rig(seq_cfg), seq_cfg, out / "sequences" / name,
+                          want_scan_gt=split == "test")
         write_sequence_files(job, out)
         jobs.append(job)
     _JOBS.clear()
@@ -183,6 +185,10 @@ def _write_world(cfg: SynthConfig, out: Path, workers: int) -> dict:
             "parked_cars": sum(o.category == "parked_car" for o in j.world.objects),
             "points_per_scan": float(np.mean([r.scan_points for r in res])),
         }
+        if j.cfg is not cfg:  # a varied sequence (SynthConfig.variety): its own camera and driving
+            sequences[j.name].update({"image_size": [j.cfg.width, j.cfg.height], "K": j.rig.K.round(9).tolist(),
+                                      "ego_speed": [round(j.cfg.ego_speed_min, 3), round(j.cfg.ego_speed_max, 3)],
+                                      "ego_stop": j.cfg.ego_stop})
         if j.want_scan_gt:
             sf = out / "sceneflow"
             counts = [write_pair(sf, k, res[k].scan_gt, res[k + 1].scan_gt) for k in range(len(res) - 1)]
@@ -190,7 +196,7 @@ def _write_world(cfg: SynthConfig, out: Path, workers: int) -> dict:
             test_pairs = len(counts)
             sequences[j.name]["sceneflow_points"] = {"flownet3d_mean": float(np.mean([c[0] for c in counts])),
                                                      "hplflownet_mean": float(np.mean([c[1] for c in counts]))}
-    K = rig.K
+    K = make_rig(cfg).K
     return {
         "sequences": sequences,
         "test_sequence": next((n for n, s in sequences.items() if s["split"] == "test"), None),

@@ -155,6 +155,10 @@ def _ego_track(cfg: SynthConfig, rng: np.random.Generator, n: int, road_curv: fl
     Tv, phv = rng.uniform(3.0, 6.0), rng.uniform(0, 2 * math.pi)
     t = np.arange(n) / fps
     v = np.clip(v0 + dv * np.sin(2 * math.pi * t / Tv + phv), cfg.ego_speed_min * 0.9, cfg.ego_speed_max * 1.1)
+    if cfg.ego_stop:  # brake to ≈0.3 m/s around a random moment and pull away again (a Gaussian dip)
+        t_c, width = rng.uniform(0.3, 0.7) * t[-1], rng.uniform(0.12, 0.25) * max(t[-1], 1e-6)
+        dip = np.exp(-(((t - t_c) / width) ** 2))
+        v = v * (1.0 - dip) + 0.3 * dip
     s = np.concatenate([[0.0], np.cumsum(v[:-1] / fps)])
     A, lam, phl = rng.uniform(0.1, 0.35), rng.uniform(40.0, 90.0), rng.uniform(0, 2 * math.pi)
     l = 0.5 * LANE_WIDTH + A * np.sin(2 * math.pi * s / lam + phl)

@@ -1,0 +1,59 @@
+"""Augmentations that bridge stage one's camera clouds and LiDAR test clouds (``DataConfig``).
+
+Stage one's clouds are back-projected depth pixels: one point per kept pixel, both frames sampled on
+the image grid, the ground removed by a fitted plane. The KITTI scene-flow test clouds are LiDAR scans:
+points on the scanner's rings, a density that changes between the two frames, and the ground removed by
+a height threshold that leaves a varying rim of low points. A net that only saw the first kind learns
+their regularities. Each augmentation picks a subset of a pair's points (frames: camera, x right, y down,
+z forward, metres), seeded by the pair's draw, before the ``n_points`` are sampled:
+
+* ``lidar_rings`` (probability per pair): keep the points near horizontal scan rings of the camera
+  centre — elevation ``atan2(−y, √(x² + z²))`` within a band of ``ring_band`` of the ring spacing, spacing
+  drawn in [0.3°, 0.5°] (HDL-64E: ≈0.4°) and phase at random, the same rings for both frames (the
+  sensor moves, so they hit other surface points in frame t+1, as a real scanner's do);
+* ``density_drop`` (fraction): frame t+1 loses a random share of up to this fraction of its points;
+* ``ground_jitter_m`` (metres): both frames lose the points lower than a cut drawn up to this far
+  above the lowest remaining points (the 99th percentile of y in frame t).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+RING_SPACING_DEG = (0.3, 0.5)
+
+
+def ring_mask(points: np.ndarray, spacing_deg: float, phase: float, band: float) -> np.ndarray:
+    """Points (N, 3) whose elevation lies within ``band`` (fraction of a spacing) of a ring."""
+    elev = np.degrees(np.arctan2(-points[:, 1], np.hypot(points[:, 0], points[:, 2])))
+    frac = np.mod(elev / spacing_deg - phase, 1.0)
+    return frac < band
+
+
+def augment_masks(rng: np.random.Generator, pc1: np.ndarray, pc2: np.ndarray, lidar_rings: float = 0.0,
+                  ring_band: float = 0.5, density_drop: float = 0.0, ground_jitter_m: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks of the points of pc1 (N1, 3) and pc2 (N2, 3) that the augmentations keep.
+
+    Draws from ``rng`` only for the augmentations that are on, so a config with all of them off gives
+    the same draws as before they existed. A mask never empties a cloud: an augmentation that would leave
+    fewer than 64 points of either cloud is skipped for that pair.
+    """
+    keep1 = np.ones(len(pc1), bool)
+    keep2 = np.ones(len(pc2), bool)
+
+    def apply(m1: np.ndarray, m2: np.ndarray) -> None:
+        nonlocal keep1, keep2
+        if (keep1 & m1).sum() >= 64 and (keep2 & m2).sum() >= 64:
+            keep1, keep2 = keep1 & m1, keep2 & m2
+
+    if lidar_rings > 0 and rng.random() < lidar_rings:
+        spacing, phase = rng.uniform(*RING_SPACING_DEG), rng.random()
+        apply(ring_mask(pc1, spacing, phase, ring_band), ring_mask(pc2, spacing, phase, ring_band))
+    if density_drop > 0:
+        share = rng.uniform(0.0, density_drop)
+        apply(np.ones(len(pc1), bool), rng.random(len(pc2)) >= share)
+    if ground_jitter_m > 0 and len(pc1):
+        cut = np.percentile(pc1[:, 1], 99.0) - rng.uniform(0.0, ground_jitter_m)
+        apply(pc1[:, 1] <= cut, pc2[:, 1] <= cut)
+    return keep1, keep2
