@@ -83,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width-scale", type=float, default=0.5)
     p.add_argument("--baselines", default="icp-p2p,fgr", help="scored once per split ('' for none)")
     p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--posthoc-ego", action="store_true",
+                   help="also score a net trained without the ego head through it (model.ego_head at test time)")
     p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
@@ -90,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from evaluation.methods import NetMethod, make_baseline
     from evaluation.readers import load_split
+    from training.selection import score_checkpoint
     from training.trainer import Trainer
 
     if args.threads:
@@ -117,18 +120,20 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 trainer.close()
             shutil.copyfile(run_dir / "latest.pt", snap)
-        net = NetMethod(snap, name="ours")
-        scores = score_splits([net], splits, cfg.data.n_points, cfg.model.level_points[0])
+        nets = [NetMethod(snap, name="ours")]
+        if args.posthoc_ego and not nets[0].config.ego_head:  # the same weights through the ego head
+            nets.append(NetMethod(snap, name="ours+ego"))
+            nets[1].net.config.ego_head = True
+        scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.level_points[0])
         row = {"step": m}
         for split_name, by_method in scores.items():
-            r = by_method["ours"]
-            for key in ("EPE3D", "EPE3D_static", "EPE3D_moving", "Acc3DS", "Outliers3D"):
-                if key in r:
-                    row[f"{split_name}/{key}"] = r[key]
-        val = [json.loads(line) for line in (run_dir / "val.jsonl").read_text().splitlines() if line.strip()]
-        at = [v for v in val if v["step"] == m]
-        if at:
-            row.update({k: v for k, v in at[-1].items() if k != "step"})
+            for net in nets:
+                r = by_method[net.name]
+                tag = split_name if net.name == "ours" else f"{split_name}+ego"
+                for key in ("EPE3D", "EPE3D_static", "EPE3D_moving", "Acc3DS", "Outliers3D"):
+                    if key in r:
+                        row[f"{tag}/{key}"] = r[key]
+        row.update(score_checkpoint(cfg, snap))  # label-free selection scores (and val EPE3D) of the snapshot
         rows.append(row)
         print(json.dumps(row), flush=True)
     base_file = out / "baselines.json"

@@ -82,7 +82,7 @@ def test_split_holds_out_sequence_tails_with_gt_flow(tiny_cache):  # noqa: F811
     assert split_pairs(r, 0.0) == (list(range(16)), [])
 
 
-def test_pairs_without_gt_flow_go_to_training(tiny_cache, tmp_path):  # noqa: F811
+def test_held_out_pairs_without_gt_flow_are_validated_without_labels(tiny_cache, tmp_path):  # noqa: F811
     import json
     import shutil
 
@@ -93,7 +93,9 @@ def test_pairs_without_gt_flow_go_to_training(tiny_cache, tmp_path):  # noqa: F8
         b["has_gt_flow"] = False
     (cache / "manifest.json").write_text(json.dumps(m))
     trainer = Trainer(tiny_config(cache, tmp_path / "run", steps=1))
-    assert trainer.val_idx == [9, 10, 11] and 15 in trainer.train_idx and len(trainer.train_idx) == 13
+    assert trainer.val_idx == [9, 10, 11, 15] and 15 not in trainer.train_idx and len(trainer.train_idx) == 12
+    val = trainer.validate()
+    assert {"val_loss", "val_l0", "val_cycle"} <= set(val) and all(v > 0 for v in val.values())
 
 
 def test_unreadable_block_is_one_input_error_through_workers(tiny_cache, tmp_path):  # noqa: F811

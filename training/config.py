@@ -14,8 +14,8 @@ class DataConfig:
 
     n_points: points sampled per cloud per step (seeded by (seed, epoch, pair index), so results do not
         depend on the number of loader workers).
-    val_fraction: the last fraction of each sequence's pairs held out for validation (only used when the
-        cache holds ground-truth flow); 0 disables validation.
+    val_fraction: the last fraction of each sequence's pairs held out for validation (label-free scores,
+        and EPE3D where the cache holds ground-truth flow); 0 disables validation.
     val_pairs_max: at most this many held-out pairs are scored at each validation.
     colour_features: use RGB in [0, 1] as the per-point features (else zeros).
     jitter_deg / jitter_m: the second pass's static flow is moved by a random rigid motion of at most
@@ -78,6 +78,9 @@ class TrainConfig:
     deterministic: ``torch.use_deterministic_algorithms`` (warn only); on the CPU a run is repeatable
         with a fixed ``threads`` either way.
     log_every / val_every / ckpt_every: in steps; the last step always validates and checkpoints.
+    select_by: the held-out score ``best.pt`` minimises: ``val_l0`` (the finest level's loss, needs no
+        labels), ``val_loss`` (the whole multi-level loss) or ``val_epe3d`` (needs ground-truth flow;
+        synthetic data only). See :mod:`training.selection`.
     """
 
     cache: str = "cache/synthetic"
@@ -94,6 +97,7 @@ class TrainConfig:
     val_every: int = 100
     ckpt_every: int = 100
     progress: bool = True
+    select_by: str = "val_l0"
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     model: HALFlowConfig = field(default_factory=HALFlowConfig)

@@ -212,6 +212,16 @@ def split_pairs(reader, val_fraction: float) -> tuple[list[int], list[int]]:
     return train, val
 
 
+def train_val_split(reader, val_fraction: float, val_pairs_max: int) -> tuple[list[int], list[int]]:
+    """Training and validation pairs: the held-out tail of every sequence (:func:`split_pairs`), scored
+    without labels and by EPE3D where it has ground-truth flow (labelled pairs are kept first); pairs
+    held out beyond ``val_pairs_max`` train."""
+    train, held = split_pairs(reader, val_fraction)
+    with_gt = pairs_with_gt_flow(reader)
+    held = sorted(held, key=lambda i: i not in with_gt)
+    return sorted(train + held[val_pairs_max:]), sorted(held[:val_pairs_max])
+
+
 class StepBatches(torch.utils.data.Sampler):
     """Yields the batch (list of dataset positions) of every global step from ``start_step`` on.
 

@@ -15,7 +15,7 @@ so P processes train like one process with the same global batch (up to float su
 Logs in the run folder: ``train.csv``/``train.jsonl`` (every logged step: loss, every loss term per
 level ``l{k}/{term}``, lr, gradient norm, timings in seconds) and ``val.csv``/``val.jsonl`` (EPE3D in
 metres at the finest level and the total loss on the held-out pairs); ``config.json``; ``latest.pt`` and
-``best.pt`` (lowest validation EPE3D).
+``best.pt`` (lowest ``select_by`` score on the held-out pairs; :mod:`training.selection`).
 """
 
 from __future__ import annotations
@@ -39,8 +39,7 @@ from training.data import (
     PairDataset,
     StepBatches,
     collate,
-    pairs_with_gt_flow,
-    split_pairs,
+    train_val_split,
 )
 from training.losses.total import LevelInputs, multi_level_loss
 from training.model.halflownet import FlowOutput, HALFlowNet
@@ -52,7 +51,7 @@ from training.runtime.rundir import save_run_info
 # Options a resumed run may change without changing the trajectory of the weights.
 RESUMABLE_CHANGES = frozenset({
     "cache", "run_dir", "steps", "epochs", "device", "threads", "amp", "deterministic", "log_every",
-    "val_every", "ckpt_every", "progress", "data.workers", "data.val_pairs_max", "model.knn_backend",
+    "val_every", "ckpt_every", "progress", "select_by", "data.workers", "data.val_pairs_max", "model.knn_backend",
     "loss.knn_backend",
 })
 
@@ -128,6 +127,10 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.data.n_points < cfg.model.level_points[0]:
         raise ConfigError(f"data.n_points {cfg.data.n_points} < model.level_points[0] {cfg.model.level_points[0]}: "
                           "set --model.n_points/--model.level_points to match the points drawn")
+    from training.selection import CRITERIA
+
+    if cfg.select_by not in CRITERIA:
+        raise ConfigError(f"select_by must be one of {', '.join(CRITERIA)}, got {cfg.select_by!r}")
     d = cfg.data
     if not (0 <= d.lidar_rings <= 1 and 0 < d.ring_band <= 1 and 0 <= d.density_drop < 1 and d.ground_jitter_m >= 0):
         raise ConfigError("need 0 <= data.lidar_rings <= 1, 0 < data.ring_band <= 1, 0 <= data.density_drop < 1 and "
@@ -188,12 +191,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ set-up helpers
     def _split(self) -> tuple[list[int], list[int]]:
-        """Training and validation pairs: the held-out tail of every sequence, where it has GT flow."""
-        train, held = split_pairs(self.reader, self.cfg.data.val_fraction)
-        with_gt = pairs_with_gt_flow(self.reader)
-        val = [i for i in held if i in with_gt]
-        train = sorted(train + [i for i in held if i not in with_gt])
-        return train, val[: self.cfg.data.val_pairs_max]
+        return train_val_split(self.reader, self.cfg.data.val_fraction, self.cfg.data.val_pairs_max)
 
     def _total_steps(self) -> int:
         cfg = self.cfg
@@ -299,35 +297,34 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Mean EPE3D (metres, finest level, per point) and mean total loss (per pair) on the held-out pairs
-        (a fixed draw), in eval mode. Under DDP the batches are shared among the processes."""
+        """Scores on the held-out pairs (a fixed draw), in eval mode (:func:`training.selection.validation_sums`);
+        under DDP the batches are shared among the processes."""
+        from training.selection import scores_from_sums, validation_sums
+
         if not self.val_idx:
             return {}
         model, was_training = self.model, self.model.training
         model.eval()
-        sums = np.zeros(4)  # EPE sum, points, loss sum (pair-weighted), pairs
         bs = self.cfg.optim.batch_size
         starts = list(range(0, len(self.val_idx), bs))[self.dist.rank::self.dist.world_size]
-        for start in starts:
-            samples = [self.val_set[p] for p in range(start, min(start + bs, len(self.val_idx)))]
-            batch = collate(samples).to(self.device)
-            out_o, out_d = forward_two_passes(model, batch)
-            total, _ = multi_level_loss(level_inputs(batch, out_o, out_d), self.cfg.loss)
-            e, n = epe3d(out_o, batch)
-            sums += (e, n, float(total) * len(samples), len(samples))
+        batches = ([self.val_set[p] for p in range(s, min(s + bs, len(self.val_idx)))] for s in starts)
+        sums = validation_sums(model, batches, self.cfg.loss, self.device)
         model.train(was_training)
         if self.dist.enabled:  # means of the per-rank sums; their ratios are the global ratios
             red = distributed.all_reduce_mean({str(k): v for k, v in enumerate(sums)}, self.dist)
-            sums = np.array([red[str(k)] for k in range(4)])
-        return {"val_epe3d": float(sums[0] / max(sums[1], 1e-12)), "val_loss": float(sums[2] / max(sums[3], 1e-12))}
+            sums = np.array([red[str(k)] for k in range(len(sums))])
+        return scores_from_sums(sums)
 
     def _after_validation(self, val: dict[str, float]) -> None:
         if not val:
             return
         if self.val_logger:
             self.val_logger.log({"step": self.step, **val})
-        if self.step > 0 and (self.best_val is None or val["val_epe3d"] < self.best_val):
-            self.best_val = val["val_epe3d"]
+        key = self.cfg.select_by
+        if key not in val:
+            return
+        if self.step > 0 and (self.best_val is None or val[key] < self.best_val):
+            self.best_val = val[key]
             self._save("best.pt")
 
     def fit(self) -> dict[str, float]:

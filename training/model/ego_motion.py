@@ -47,23 +47,29 @@ def weighted_rigid_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tenso
     return R.to(src.dtype), t.to(src.dtype)
 
 
-def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4
-                        ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
+                        mad_factor: float = 0.0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
     (B, 3, 3) and translation (B, 3) (camera-1 → camera-2), and the final Cauchy weights (B, N) in (0, 1]
     (≈1: the point moves with the camera; ≈0: it moves on its own). ``sigma`` (metres) is the residual
-    at which a point counts half static, half moving; ``iterations`` the re-weighting rounds.
+    at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
+    ``max(sigma, mad_factor · 1.4826 · median residual)`` per cloud, re-estimated every round (the
+    median absolute residual times 1.4826 estimates a Gaussian's σ robustly); ``iterations`` the
+    re-weighting rounds.
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
-    s2 = sigma * sigma
+    s2 = torch.full((points.shape[0], 1), sigma * sigma, dtype=points.dtype, device=points.device)
     for _ in range(max(1, iterations)):
         R, t = weighted_rigid_fit(points, target, weights)
         with torch.no_grad():
             moved = points @ R.transpose(1, 2) + t[:, None]
             r2 = ((target - moved) ** 2).sum(-1)
+            if mad_factor > 0:  # robust scale: mad_factor × 1.4826 × median residual, at least sigma
+                scale = mad_factor * 1.4826 * r2.sqrt().median(dim=1, keepdim=True).values
+                s2 = torch.clamp(scale * scale, min=sigma * sigma)
             weights = s2 / (s2 + r2)
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():

@@ -60,8 +60,11 @@ class HALFlowConfig:
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
-    ego_sigma: metres; the flow residual against the fitted ego-motion at which a point counts half
-        static, half moving (Cauchy scale of the re-weighting and of the gate).
+    ego_sigma: metres; the smallest residual scale of the head: a point whose flow differs from the
+        fitted ego-motion by this much counts half static, half moving (Cauchy re-weighting and gate).
+    ego_mad_factor: the scale actually used is max(ego_sigma, ego_mad_factor × 1.4826 × the median
+        residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
+        standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
     ego_iterations: re-weighting rounds of the robust rigid fit.
     """
 
@@ -80,7 +83,8 @@ class HALFlowConfig:
     batch_norm: bool = True
     center_input: bool = True
     ego_head: bool = False
-    ego_sigma: float = 0.25
+    ego_sigma: float = 0.1
+    ego_mad_factor: float = 3.0
     ego_iterations: int = 4
 
     def __post_init__(self) -> None:
@@ -106,8 +110,9 @@ class HALFlowConfig:
             raise ConfigError(f"feature_dim must be >= 0, got {self.feature_dim}")
         if self.knn_backend not in BACKENDS:
             raise ConfigError(f"knn_backend must be one of {BACKENDS}, got {self.knn_backend!r}")
-        if not self.ego_sigma > 0 or self.ego_iterations < 1:
-            raise ConfigError(f"need ego_sigma > 0 and ego_iterations >= 1, got {self.ego_sigma}, {self.ego_iterations}")
+        if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
+            raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
+                              f"{self.ego_mad_factor}, {self.ego_iterations}")
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
 
@@ -214,7 +219,7 @@ class HALFlowNet(nn.Module):
         cfg = self.config
         if not cfg.ego_head:
             return flow
-        out, *_ = rigid_plus_residual(xyz.float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations)
+        out, *_ = rigid_plus_residual(xyz.float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor)
         return out.to(flow.dtype)
 
     def _down(
