@@ -41,23 +41,13 @@ def _coerce(text: str):
 
 def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scale: float = 0.5, seed: int = 0,
                       overrides: dict | None = None):
-    """The demo's :class:`~training.config.TrainConfig` (``scripts/demo.py``), with dotted overrides."""
-    from evaluation.ablations import level_points_for
-    from pipeline.options import config_from_dict
-    from training.config import TrainConfig
+    """The paper's form at the demo's sizes (no ego head, no augmentation) plus ``overrides``: the curves
+    start from the paper and switch departures on one by one."""
+    from training.presets import demo_train_config as preset
 
-    base = {"cache": cache, "run_dir": run_dir, "seed": seed, "progress": False,
-            "data": {"n_points": n_points, "workers": 0, "colour_features": False},
-            "optim": {"batch_size": 4},
-            "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)),
-                      "width_scale": width_scale}}
-    for key, value in (overrides or {}).items():
-        node = base
-        *path, leaf = key.split(".")
-        for part in path:
-            node = node.setdefault(part, {})
-        node[leaf] = list(value) if isinstance(value, tuple) else value
-    return config_from_dict(TrainConfig, base)
+    paper = {"model.ego_head": False, "data.lidar_rings": 0.0, "data.density_drop": 0.0, "data.ground_jitter_m": 0.0,
+             "data.workers": 0, "progress": False}
+    return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
 
 
 def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int, seeds=(0,)) -> dict:

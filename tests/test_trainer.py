@@ -201,3 +201,21 @@ def test_config_combinations_are_checked(tiny_cache, tmp_path):  # noqa: F811
         Trainer(tiny_config(tiny_cache, tmp_path, data={"n_points": 100}))
     with pytest.raises(ConfigError, match="only 12 training pairs for a batch of 13"):
         Trainer(tiny_config(tiny_cache, tmp_path, optim={"batch_size": 13}))
+
+
+def test_best_checkpoint_follows_the_label_free_criterion(trained):
+    """``select_by = val_l0`` (default): best.pt holds the step with the lowest finest-level validation loss;
+    every validation logs the label-free scores beside EPE3D."""
+    trainer, *_ = trained
+    rows = [json.loads(line) for line in (trainer.run_dir / "val.jsonl").read_text().splitlines()]
+    assert all({"val_l0", "val_cycle", "val_loss", "val_epe3d"} <= set(r) for r in rows)
+    best = min((r for r in rows if r["step"] > 0), key=lambda r: r["val_l0"])
+    from training.runtime.checkpoints import load_checkpoint
+
+    saved = load_checkpoint(trainer.run_dir / "best.pt", kind="flow")
+    assert saved["step"] == best["step"] and saved["best_val"] == pytest.approx(best["val_l0"])
+
+
+def test_unknown_selection_criterion_is_refused(tiny_cache, tmp_path):  # noqa: F811
+    with pytest.raises(ConfigError, match="select_by"):
+        Trainer(tiny_config(tiny_cache, tmp_path, select_by="val_magic"))
