@@ -45,7 +45,7 @@ def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scal
     start from the paper and switch departures on one by one."""
     from training.presets import demo_train_config as preset
 
-    paper = {"model.ego_head": False, "data.lidar_rings": 0.0, "data.density_drop": 0.0, "data.ground_jitter_m": 0.0,
+    paper = {"model.ego_head": False, "model.eval_norm_stats": "running", "data.lidar_rings": 0.0, "data.density_drop": 0.0, "data.ground_jitter_m": 0.0,
              "data.workers": 0, "progress": False}
     return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
 
@@ -73,8 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width-scale", type=float, default=0.5)
     p.add_argument("--baselines", default="icp-p2p,fgr", help="scored once per split ('' for none)")
     p.add_argument("--threads", type=int, default=0)
-    p.add_argument("--posthoc-ego", action="store_true",
-                   help="also score a net trained without the ego head through it (model.ego_head at test time)")
+    p.add_argument("--variants", default="as-trained",
+                   help="comma list of test-time settings to score each snapshot under: 'as-trained', or '+'-joined "
+                        "switches 'ego' (model.ego_head on), 'input' / 'running' (model.eval_norm_stats)")
     p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
@@ -110,16 +111,22 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 trainer.close()
             shutil.copyfile(run_dir / "latest.pt", snap)
-        nets = [NetMethod(snap, name="ours")]
-        if args.posthoc_ego and not nets[0].config.ego_head:  # the same weights through the ego head
-            nets.append(NetMethod(snap, name="ours+ego"))
-            nets[1].net.config.ego_head = True
+        nets = []
+        for variant in args.variants.split(","):  # the same weights under other test-time settings
+            net = NetMethod(snap, name=variant)
+            if "ego" in variant.split("+"):
+                net.net.config.ego_head = True
+            if "input" in variant.split("+"):
+                net.net.set_eval_norm_stats("input")
+            if "running" in variant.split("+"):
+                net.net.set_eval_norm_stats("running")
+            nets.append(net)
         scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.level_points[0])
         row = {"step": m}
         for split_name, by_method in scores.items():
             for net in nets:
                 r = by_method[net.name]
-                tag = split_name if net.name == "ours" else f"{split_name}+ego"
+                tag = f"{split_name}:{net.name}"
                 for key in ("EPE3D", "EPE3D_static", "EPE3D_moving", "Acc3DS", "Outliers3D"):
                     if key in r:
                         row[f"{tag}/{key}"] = r[key]

@@ -66,6 +66,10 @@ class HALFlowConfig:
         residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
         standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
     ego_iterations: re-weighting rounds of the robust rigid fit.
+    eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
+        training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
+        so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
+        camera clouds, and a LiDAR test cloud's features have other statistics. Training is unchanged.
     """
 
     n_points: int = 8192
@@ -86,6 +90,7 @@ class HALFlowConfig:
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
     ego_iterations: int = 4
+    eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -113,6 +118,8 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
+        if self.eval_norm_stats not in ("running", "input"):
+            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
 
@@ -211,6 +218,16 @@ class HALFlowNet(nn.Module):
         self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), bn, kb)
         self.fc0 = SharedMLP(self.fp0.out_channels, w(128), bn)
         self.head0 = FlowHead(self.fc0.out_channels)
+        self.set_eval_norm_stats(cfg.eval_norm_stats)
+
+    def set_eval_norm_stats(self, mode: str) -> None:
+        """``"running"`` or ``"input"`` statistics for batch norm in eval mode (see :class:`HALFlowConfig`)."""
+        if mode not in ("running", "input"):
+            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {mode!r}")
+        self.config.eval_norm_stats = mode
+        for m in self.modules():
+            if isinstance(m, SharedMLP):
+                m.input_stats = mode == "input"
 
     # ------------------------------------------------------------------ helpers
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 
@@ -31,6 +32,9 @@ class SharedMLP(nn.Module):
         self.linears = nn.ModuleList()
         self.norms = nn.ModuleList()
         self.activate: list[bool] = []
+        # eval mode only: normalise with the statistics of the input itself instead of the running ones
+        # (set by HALFlowNet from HALFlowConfig.eval_norm_stats; see there)
+        self.input_stats = False
         c = in_channels
         for i, w in enumerate(widths):
             plain = last_linear and i == len(widths) - 1
@@ -45,7 +49,12 @@ class SharedMLP(nn.Module):
             x = linear(x)
             if not isinstance(norm, nn.Identity):
                 shape = x.shape
-                x = norm(x.reshape(-1, shape[-1])).view(shape)
+                flat = x.reshape(-1, shape[-1])
+                if self.input_stats and not self.training:
+                    flat = F.batch_norm(flat, None, None, norm.weight, norm.bias, True, 0.0, norm.eps)
+                else:
+                    flat = norm(flat)
+                x = flat.view(shape)
             if act:
                 x = torch.relu(x)
         return x
