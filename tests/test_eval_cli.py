@@ -60,7 +60,9 @@ def test_run_end_to_end_and_rescore(world: Path, checkpoint: Path, tmp_path: Pat
     printed = capsys.readouterr().out
     assert rc == 0
     assert "| Method | EPE3D (m)↓" in printed and "| ours (run, step 3) |" in printed and "| icp-p2p |" in printed
-    assert "256 points sampled, 64 scored" in printed  # the net's own sizes
+    # the header names the protocol, the scored-point rule (the net's own sizes), the seeds and the scenes
+    assert ("2 scenes of " in printed and "protocol fps: scored 64 farthest-point samples (from row 0) of 256 "
+            "random points per cloud; seeds [0]" in printed)
     assert (out / "results.md").read_text().strip() in printed
     report = json.loads((out / "results.json").read_text())
     assert [r["method"] for r in report["rows"]] == ["ours (run, step 3)", "zero", "icp-p2p"]
@@ -168,7 +170,7 @@ def test_two_checkpoints_of_same_named_runs_get_distinct_names(world: Path, chec
     assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) #2"]
     assert rows[0]["EPE3D"] != rows[1]["EPE3D"]  # different weights, scored separately
     assert rows[0]["n_scenes"] == 1 and rows[0]["n_seeds"] == 2 and "EPE3D_std" in rows[0]
-    assert "all scored, seeds [0, 1]" in capsys.readouterr().out
+    assert "protocol full: scored every input point of pc1" in capsys.readouterr().out
 
 
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:
