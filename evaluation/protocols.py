@@ -183,7 +183,7 @@ def scored_points(pc1_sampled: np.ndarray, n_score: int) -> np.ndarray:
     from training.pointops import farthest_point_sample
 
     n = min(n_score, len(pc1_sampled))
-    pts = torch.from_numpy(np.ascontiguousarray(pc1_sampled, dtype=np.float32))[None]
+    pts = torch.from_numpy(np.array(pc1_sampled, dtype=np.float32))[None]  # a writable copy
     return farthest_point_sample(pts, n)[0].numpy()
 
 

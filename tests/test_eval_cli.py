@@ -109,6 +109,38 @@ def test_net_scores_its_own_level0_points(world: Path, checkpoint: Path) -> None
     np.testing.assert_allclose(flow[idx], out.flows[0][0].numpy(), atol=1e-5)
 
 
+def test_synthetic_test_split_marks_class_and_instance_per_point(world: Path) -> None:
+    """The writer labels every pc1 point: class 1 (car) on movers and parked cars, 0 elsewhere; the readers
+    of both layouts pass the labels through their own filters."""
+    for fmt in ("flownet3d", "hplflownet"):
+        split = load_split(world / "sceneflow" / fmt)
+        for s in split:
+            assert s.classes is not None and s.instance is not None and len(s.classes) == s.n1
+            assert set(np.unique(s.classes).tolist()) <= {0, 1}
+            assert np.all(s.classes[s.moving] == 1)  # every mover is a car
+            for inst in np.unique(s.instance[s.classes == 1]):  # one class and one motion per instance
+                on = s.instance == inst
+                assert np.all(s.classes[on] == 1) and len(np.unique(s.moving[on])) == 1
+
+
+def test_guard_refuses_scenes_the_checkpoint_trained_on(world: Path, checkpoint: Path, tmp_path: Path,
+                                                        capsys) -> None:
+    run = tmp_path / "ft"
+    run.mkdir()
+    ckpt = run / "latest.pt"
+    shutil.copy(checkpoint, ckpt)
+    (run / "train_scenes.txt").write_text("000001\n")
+    split = world / "sceneflow" / "flownet3d"
+    args = ["run", "--split", str(split), "--checkpoint", str(ckpt), "--baselines", "", "--out",
+            str(tmp_path / "e"), "--no-progress", "--device", "cpu"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "trained on 1 of the scenes" in err and "train_scenes.txt" in err
+    assert main([*args, "--scenes", "first:1"]) == 0  # disjoint scenes are scored
+    report = json.loads((tmp_path / "e" / "results.json").read_text())
+    assert report["scenes"] == ["000000"] and report["selection"]["scenes"] == "first:1"
+
+
 def test_malformed_split_is_one_error_line(world: Path, checkpoint: Path, tmp_path: Path, capsys) -> None:
     split = tmp_path / "split"
     shutil.copytree(world / "sceneflow" / "flownet3d", split)
