@@ -10,13 +10,16 @@ Formats (``fmt``):
   (FLOT's protocol keeps camera z < 35 m in each cloud separately); off by default.
 * ``"hplflownet"`` — HPLFlowNet's ``KITTI_processed_occ_final``: one folder per scene with ``pc1.npy``
   and ``pc2.npy`` (N, 3) of corresponding points in stored axes ``(−x, −y, z)`` of the camera;
-  flow = ``pc2 − pc1``; optional ``moving.npy``, ``classes.npy``, ``instance.npy`` (N,). Filtering follows HPLFlowNet's own loader
+  flow = ``pc2 − pc1``; optional ``moving.npy``, ``classes.npy``, ``instance.npy`` (N,). Filtering
+  follows HPLFlowNet's own loader
   (``datasets/kitti.py`` + ``transforms.ProcessData.process_inference``), applied to the stored axes:
   ground is ``y_s < −1.4`` and a pair is dropped **only when both** its pc1 and pc2 points are ground
   (``is_ground = (pc1.y < −1.4) & (pc2.y < −1.4)``) — ``ground_rule="either"`` drops a pair when either
   point is ground instead; then pairs are kept where ``z_s < 35`` in **both** pc1 and pc2.
   HPLFlowNet additionally keeps only the 142 of 200 scenes that have a KITTI-raw mapping (its
-  ``KITTI_mapping.txt``); pass those scene names as ``names=`` to reproduce that.
+  ``KITTI_mapping.txt``, the devkit's ``train_mapping.txt``); ``monoflow-evaluate run --protocol
+  hplflownet --mapping FILE`` applies it (:func:`evaluation.scenes.mapped_scenes`), or pass the kept
+  names as ``names=``.
 * ``"opensceneflow"`` — OpenSceneFlow / DeFlow preprocessed HDF5: one ``<scene_id>.h5`` per scene, one
   group per timestamp (name = the integer timestamp) with ``lidar`` (N, ≥3, sensor/ego frame,
   LiDAR axes), ``pose`` (4, 4) ego→world, ``ground_mask`` (N,) and, on frames that have ground truth,
@@ -219,7 +222,8 @@ def _load_flownet3d(entry: _Entry, opts: FlowNet3DOptions) -> SceneFlowSample:
         keep1 = pc1[:, 2] < opts.max_depth
         keep2 = pc2[:, 2] < opts.max_depth
         pc1, flow, pc2 = pc1[keep1], flow[keep1], pc2[keep2]
-        moving, color1, classes, instance = (None if a is None else a[keep1] for a in (moving, color1, classes, instance))
+        moving, color1, classes, instance = (None if a is None else a[keep1]
+                                             for a in (moving, color1, classes, instance))
         color2 = None if color2 is None else color2[keep2]
     return SceneFlowSample(entry.name, pc1, pc2, flow, color1=color1, color2=color2, moving=moving,
                            classes=classes, instance=instance)
