@@ -78,6 +78,10 @@ def test_run_end_to_end_and_rescore(world: Path, checkpoint: Path, tmp_path: Pat
         assert scored["method"] == row["method"]
         assert scored["EPE3D"] == pytest.approx(row["EPE3D"], rel=1e-12)
         assert scored["Acc3DS"] == pytest.approx(row["Acc3DS"], rel=1e-12)
+        bands = [k for k in row if k.startswith("EPE3D_z") and not k.endswith("_std")]
+        assert bands  # the distance bands are in the run's rows and recomputed from the saved points
+        for key in bands:
+            assert scored[key[len("EPE3D_"):]]["EPE3D"] == pytest.approx(row[key], rel=1e-12)
         assert scored["n_scenes"] == 2
     # zero flow: the saved predicted flow is zero and its EPE is the mean |gt| (by hand from the file)
     zero = read_predictions(out / "predictions-zero.h5")
