@@ -17,7 +17,7 @@ import argparse
 import time
 from pathlib import Path
 
-from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS
+from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
 from pipeline.errors import ConfigError, run_cli
 
 
@@ -87,7 +87,7 @@ def _unique_names(methods: list) -> None:
             m.name = f"{base} #{seen[base]}"
 
 
-def protocol_title(cfg, n_scenes: int, split: str, selection: dict | None = None) -> str:
+def protocol_title(cfg: ProtocolConfig, n_scenes: int, split: str, selection: dict | None = None) -> str:
     """The report header: scene count (and how they were chosen), protocol, scored-point rule, seeds."""
     selection = selection or {}
     how = []
@@ -107,7 +107,7 @@ def _run(args) -> int:
     import sys
 
     from evaluation.methods import NetMethod, make_baseline
-    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+    from evaluation.protocols import run_protocol, summary_rows
     from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
 
