@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         cases.append(("2048 / 512", [demo], ProtocolConfig(n_points=2048, n_score=512)))
         baselines = [make_baseline(b) for b in ("icp-p2p", "icp-p2l", "fgr")]
         cases.append(("8192 / 2048", baselines, ProtocolConfig(n_points=8192, n_score=2048)))
-        print("\n### Evaluation time per scene, CPU (paper protocol; mean over scenes after one warm-up call)\n")
+        print("\n### Evaluation time per scene, CPU (fps protocol; mean over scenes after one warm-up call)\n")
         print("| method | points sampled / scored | s per scene | EPE3D (m) |")
         print("|---|---|---:|---:|")
         for label, methods, cfg in cases:

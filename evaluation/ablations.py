@@ -182,12 +182,12 @@ def train_variant(cfg: AblationConfig, cache: Path, run_dir: Path, loss_switches
 
 
 def evaluate_variant(cfg: AblationConfig, checkpoint: Path, name: str, split) -> dict[str, Any]:
-    """Paper protocol at the variant's own point counts, seed ``cfg.seed``; one summary row."""
+    """The fps protocol (the net's level-0 points) at the variant's point counts, seed ``cfg.seed``; one row."""
     from evaluation.methods import NetMethod
     from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
 
     net = NetMethod(checkpoint, device=cfg.device, name=name)
-    pcfg = ProtocolConfig(protocol="paper", n_points=net.n_points, n_score=net.n_score, seeds=(cfg.seed,))
+    pcfg = ProtocolConfig(protocol="fps", n_points=net.n_points, n_score=net.n_score, seeds=(cfg.seed,))
     return summary_rows(run_protocol(split, [net], pcfg, progress=False))[0]
 
 

@@ -4,7 +4,9 @@ Examples::
 
     monoflow-evaluate run --split cache/demo/world/sceneflow/flownet3d --checkpoint runs/demo/latest.pt \\
         --baselines zero,icp-p2p,fgr --out runs/demo/eval
-    monoflow-evaluate run --split KITTI_processed_occ_final --format hplflownet --baselines icp-p2l --seeds 0,1,2
+    monoflow-evaluate run --split KITTI_processed_occ_final --protocol hplflownet \\
+        --mapping train_mapping.txt --baselines icp-p2l --seeds 0,1,2
+    monoflow-evaluate run --split kitti_rm_ground --protocol released --scenes kitti_t --checkpoint ft.pt
     monoflow-evaluate score runs/demo/eval/predictions-*.h5     # recompute metrics from saved predictions
     monoflow-evaluate ablations --world cache/demo/world --out runs/ablations --steps 200
 """
@@ -15,6 +17,7 @@ import argparse
 import time
 from pathlib import Path
 
+from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
 from pipeline.errors import ConfigError, run_cli
 
 
@@ -32,9 +35,22 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
     r.add_argument("--baselines", default="zero,icp-p2p,icp-p2l,fgr",
                    help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr ('' for none)")
-    r.add_argument("--protocol", default="paper", choices=("paper", "full"))
-    r.add_argument("--n-points", type=int, default=None, help="points sampled per cloud (default: the net's, else 8192)")
-    r.add_argument("--n-score", type=int, default=None, help="scored points, paper protocol (default: net's L0, else 2048)")
+    r.add_argument("--protocol", default="fps", choices=(*PROTOCOLS, *ALIASES),
+                   help="which points are scored (docs/evaluation-protocols.md): released = first n-score of the "
+                        "seeded random sample (3DUnMonoFlow), fps = n-score farthest-point samples (the level-0 "
+                        "points of an fps-sampling net; 'paper' is its old name), hplflownet = all 8192 of the "
+                        "142 mapped scenes (needs --mapping), flownet3d = all 16384 sampled, full = every input "
+                        "point")
+    r.add_argument("--n-points", type=int, default=None,
+                   help="points sampled per cloud (default: the net's, else 8192; flownet3d 16384)")
+    r.add_argument("--n-score", type=int, default=None,
+                   help="scored points of released / fps (default: the net's level 0, else 2048)")
+    r.add_argument("--mapping", default=None,
+                   help="KITTI devkit train_mapping.txt: keep only the scenes with a raw-data recording "
+                        "(needed by --protocol hplflownet)")
+    r.add_argument("--scenes", default="all",
+                   help="all | first:N | last:N | kitti_t (last 50 of the 150 KITTI_o scenes), over the sorted "
+                        "scene names after --mapping")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto")
@@ -71,13 +87,27 @@ def _unique_names(methods: list) -> None:
             m.name = f"{base} #{seen[base]}"
 
 
+def protocol_title(cfg: ProtocolConfig, n_scenes: int, split: str, selection: dict | None = None) -> str:
+    """The report header: scene count (and how they were chosen), protocol, scored-point rule, seeds."""
+    selection = selection or {}
+    how = []
+    if selection.get("mapping"):
+        total = selection["split_scenes"]
+        how.append(f"{total - len(selection.get('dropped_by_mapping', []))} of {total} have a raw-data mapping")
+    if selection.get("scenes", "all") != "all":
+        how.append(f"--scenes {selection['scenes']}")
+    scenes = f"{n_scenes} scenes" + (f" ({'; '.join(how)})" if how else "")
+    return (f"{scenes} of {split} — protocol {cfg.protocol}: scored {cfg.scored_rule()}; "
+            f"seeds {list(cfg.seeds)}")
+
+
 def _run(args) -> int:
     import dataclasses
     import re
     import sys
 
     from evaluation.methods import NetMethod, make_baseline
-    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+    from evaluation.protocols import run_protocol, summary_rows
     from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
 
@@ -85,15 +115,37 @@ def _run(args) -> int:
         from evaluation.plots import _matplotlib
 
         _matplotlib()  # a missing optional extra is reported before any work
+    from evaluation.scenes import check_not_trained_on, mapped_scenes, select_scenes
+
     seeds = _ints(args.seeds, "--seeds")
+    protocol = ALIASES.get(args.protocol, args.protocol)
+    if protocol != args.protocol:
+        print(f"note: protocol '{args.protocol}' is the old name of '{protocol}' (farthest-point scored points)",
+              file=sys.stderr)
+    if protocol == "hplflownet" and not args.mapping:
+        raise ConfigError("--protocol hplflownet needs --mapping (the KITTI devkit's train_mapping.txt): HPLFlowNet "
+                          "scores only the scenes with a raw-data recording")
     split = load_split(args.split, args.format)
     if args.max_scenes < 0:
         raise ConfigError(f"--max-scenes must be >= 0, got {args.max_scenes}")
+    selection: dict = {"scenes": args.scenes, "split_scenes": len(split)}
+    names = split.names
+    if args.mapping:
+        names, dropped = mapped_scenes(names, args.mapping)
+        selection.update(mapping=str(args.mapping), dropped_by_mapping=dropped)
+        if not names:
+            raise ConfigError(f"no scene of {args.split} has a non-empty line in {args.mapping}")
+    names = select_scenes(names, args.scenes)
     if args.max_scenes:  # a shorter view of the split; scenes are still read one at a time
-        split = dataclasses.replace(split, entries=split.entries[: args.max_scenes])
+        names = names[: args.max_scenes]
+    if len(names) != len(split):
+        keep = set(names)
+        split = dataclasses.replace(split, entries=[e for e in split.entries if e.name in keep])
     scenes = split
     first = scenes[0]
     nets = [NetMethod(c, device=args.device) for c in args.checkpoint]
+    for n in nets:
+        check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
     methods = [*nets, *[make_baseline(b) for b in baselines]]
     if not methods:
@@ -104,8 +156,10 @@ def _run(args) -> int:
     sizes = {(n.n_points, n.n_score) for n in nets}
     if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
         raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
-    n_points, n_score = sizes.pop() if sizes else (8192, 2048)
-    cfg = ProtocolConfig(protocol=args.protocol, n_points=args.n_points or n_points,
+    n_points, n_score = sizes.pop() if sizes else (DEFAULT_POINTS[protocol], 2048)
+    if protocol in ("hplflownet", "flownet3d"):  # these fix the sample size; the net runs on any size
+        n_points = DEFAULT_POINTS[protocol]
+    cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
                          n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     for n in nets:
         if cfg.n_points < n.config.level_points[0]:
@@ -114,6 +168,10 @@ def _run(args) -> int:
         if n.uses_colour and first.color1 is None:
             print(f"note: {n.name} was trained with colour features; {args.split} has no colours, so it gets "
                   "zeros", file=sys.stderr)
+        own = {"fps": "fps", "random": "released"}.get(n.config.sampling)
+        if protocol in ("fps", "released") and own != protocol:
+            print(f"note: {n.name} samples its level 0 by '{n.config.sampling}', so its flow at the points "
+                  f"'{protocol}' scores is interpolated (its own points: --protocol {own})", file=sys.stderr)
     out = Path(args.out)
     writers: dict = {}
     first_scene: dict = {}
@@ -141,9 +199,9 @@ def _run(args) -> int:
     for w in writers.values():
         w.close()
     rows = summary_rows(results)
-    title = (f"{len(scenes)} scenes of {args.split} — protocol {cfg.protocol}, {cfg.n_points} points sampled, "
-             f"{cfg.n_score if cfg.protocol == 'paper' else 'all'} scored, seeds {list(cfg.seeds)}")
-    details = {"protocol": dict(cfg.__dict__), "split": str(args.split), "format": split.fmt,
+    title = protocol_title(cfg, len(scenes), str(args.split), selection)
+    details = {"protocol": dict(cfg.__dict__), "scored_points": cfg.scored_rule(), "selection": selection,
+               "split": str(args.split), "format": split.fmt,
                "scenes": split.names,
                "checkpoints": {n.name: str(n.checkpoint) for n in nets},
                "per_seed": {r.name: r.per_seed for r in results},

@@ -6,8 +6,10 @@ the flow of every pc1 point, (N, 3) float32 metres. A method with ``needs_pose =
 ``pose=`` the scene's ``T_{1→2}`` (4×4, or None when the split has none).
 
 The trained net predicts at its level-0 points; its flow is spread to the other sampled points by 3-NN
-inverse-distance interpolation, which is exact at the level-0 points (the points the paper protocol
-scores).
+inverse-distance interpolation, which is exact at the level-0 points. Those are the points the ``fps``
+protocol scores for a net trained with ``sampling="fps"`` and the points ``released`` scores (the first
+rows) for one trained with ``sampling="random"``; elsewhere the scored flow is interpolated
+(``docs/evaluation-protocols.md``).
 """
 
 from __future__ import annotations
@@ -90,6 +92,7 @@ class NetMethod:
         except RuntimeError as exc:
             raise InputError(path, f"weights do not match the model config ({str(exc).splitlines()[0]})") from None
         self.net = self.net.to(self.device).eval()
+        self.run_config = cfg  # the run's whole config (evaluation.scenes reads what it trained on)
         self.step = int(ckpt.get("step", 0))
         self.checkpoint = path
         self.name = name or f"ours ({path.parent.name}, step {self.step})"
@@ -102,7 +105,7 @@ class NetMethod:
 
     @property
     def n_score(self) -> int:
-        """Level-0 points (the paper protocol's default ``n_score``)."""
+        """Level-0 points (the default ``n_score`` of the ``fps`` / ``released`` protocols)."""
         return self.config.level_points[0]
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:

@@ -13,6 +13,24 @@ weighs the same, whatever its point count). Accuracies and outliers are fraction
 
 When a per-point ``moving`` mask is given, the same metrics are also computed on the static and on the
 moving points; a scene contributes to a subset's average only if it has points in that subset.
+
+Metrics that keep the static majority from hiding the movers (Chodosh et al. 2023, Khatri et al. 2024),
+computed where the split marks them:
+
+* **three-way EPE** (needs ``moving`` and ``foreground``, i.e. a per-point class with 0 = background):
+  the metrics on background-static (``bg_static``), foreground-static (``fg_static``) and
+  foreground-dynamic (``fg_dynamic``) points; ``EPE3D_threeway`` is the mean of the three subsets'
+  EPE3D (each first averaged over the scenes that have such points, like every subset here — the
+  Argoverse-2 API sums points over the whole split instead). Background points marked moving belong to
+  none of the three.
+* **dynamic normalised EPE** (needs ``moving``): per scene, the mean EPE of the moving points divided by
+  their mean true flow length ‖g‖ (``moving["EPE3D_norm"]``, dimensionless) — the share of the motion
+  left undescribed (0 = perfect, 1 = as bad as predicting zero flow for them, on average). Flow here
+  includes the camera's own motion (KITTI's convention), so the denominator is the total observed
+  motion of those points, not the object's motion alone as on ego-compensated Argoverse-2 data.
+* **distance bands** (needs ``depth``, camera z of the scored points in metres): the metrics on points
+  with z in [0, 20), [20, 35) and [35, ∞) m (``z0-20``, ``z20-35``, ``z35+``), each present only where a
+  scene has such points; monocular depth error grows with range.
 """
 
 from __future__ import annotations
@@ -23,7 +41,11 @@ from typing import Any
 import numpy as np
 
 METRIC_NAMES: tuple[str, ...] = ("EPE3D", "Acc3DS", "Acc3DR", "Outliers3D")
-SUBSETS: tuple[str, ...] = ("static", "moving")
+THREEWAY: tuple[str, ...] = ("bg_static", "fg_static", "fg_dynamic")
+BANDS: tuple[tuple[str, float, float], ...] = (("z0-20", 0.0, 20.0), ("z20-35", 20.0, 35.0),
+                                               ("z35+", 35.0, float("inf")))
+SUBSETS: tuple[str, ...] = ("static", "moving", *THREEWAY, *(b[0] for b in BANDS))
+OPTIONAL_METRICS: tuple[str, ...] = ("EPE3D_norm",)  # aggregated where every member has it
 REL_EPS = 1e-4
 
 
@@ -61,11 +83,20 @@ def _summarise(err: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, float 
     }
 
 
+def _vector(name: str, value: Any, n: int, dtype: type) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    return arr.astype(dtype)
+
+
 def scene_metrics(
     pred: np.ndarray,
     gt: np.ndarray,
     mask: np.ndarray | None = None,
     moving: np.ndarray | None = None,
+    foreground: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Metrics of one scene.
 
@@ -74,11 +105,15 @@ def scene_metrics(
         gt: (N, 3) ground-truth flow, metres.
         mask: optional (N,) bool, the points to score (default: all).
         moving: optional (N,) bool, True on independently moving points; adds ``"static"`` and
-            ``"moving"`` sub-dicts, each present only when that subset has scored points.
+            ``"moving"`` sub-dicts, each present only when that subset has scored points; the
+            ``"moving"`` one also holds ``"EPE3D_norm"`` (dynamic normalised EPE, module docstring).
+        foreground: optional (N,) bool, True on foreground-class points (class ≠ 0); with ``moving``
+            adds the three-way subsets ``"bg_static"``, ``"fg_static"``, ``"fg_dynamic"``.
+        depth: optional (N,) camera z of the scored points, metres; adds the distance-band subsets.
 
     Returns:
         ``{"EPE3D", "Acc3DS", "Acc3DR", "Outliers3D": float, "n_points": int}`` plus the optional
-        ``"static"`` / ``"moving"`` sub-dicts of the same form.
+        subset sub-dicts of the same form (:data:`SUBSETS`).
 
     Raises:
         ValueError: on mismatched shapes or when no point is scored.
@@ -95,14 +130,34 @@ def scene_metrics(
         raise ValueError("no points to score (empty scene or empty mask)")
     out: dict[str, Any] = _summarise(err, keep)
     if moving is not None:
-        moving = np.asarray(moving)
-        if moving.shape != (n,):
-            raise ValueError(f"moving must have shape ({n},), got {moving.shape}")
-        moving = moving.astype(bool)
+        moving = _vector("moving", moving, n, bool)
         for subset, sel in (("static", keep & ~moving), ("moving", keep & moving)):
             if sel.any():
                 out[subset] = _summarise(err, sel)
+        if "moving" in out:
+            sel = keep & moving
+            speed = float(np.linalg.norm(np.asarray(gt, np.float64)[sel], axis=1).mean())
+            out["moving"]["EPE3D_norm"] = out["moving"]["EPE3D"] / max(speed, REL_EPS)
+        if foreground is not None:
+            fg = _vector("foreground", foreground, n, bool)
+            for subset, sel in (("bg_static", ~fg & ~moving), ("fg_static", fg & ~moving),
+                                ("fg_dynamic", fg & moving)):
+                if (sel & keep).any():
+                    out[subset] = _summarise(err, sel & keep)
+    if depth is not None:
+        z = _vector("depth", depth, n, np.float64)
+        for name, lo, hi in BANDS:
+            sel = keep & (z >= lo) & (z < hi)
+            if sel.any():
+                out[name] = _summarise(err, sel)
     return out
+
+
+def threeway(metrics: Mapping[str, Any]) -> float | None:
+    """Mean of the three-way subsets' EPE3D of an :func:`aggregate` output, or None if one is missing."""
+    if all(s in metrics for s in THREEWAY):
+        return float(np.mean([metrics[s]["EPE3D"] for s in THREEWAY]))
+    return None
 
 
 def _mean_std(values: list[float], with_std: bool, key: str, out: dict[str, Any]) -> None:
@@ -116,6 +171,9 @@ def _aggregate_flat(scenes: list[Mapping[str, Any]], with_std: bool) -> dict[str
     out: dict[str, Any] = {}
     for key in METRIC_NAMES:
         _mean_std([s[key] for s in scenes], with_std, key, out)
+    for key in OPTIONAL_METRICS:
+        if all(key in s for s in scenes):
+            _mean_std([s[key] for s in scenes], with_std, key, out)
     out["n_scenes"] = len(scenes)
     out["n_points"] = int(sum(int(s.get("n_points", 0)) for s in scenes))
     return out
@@ -130,7 +188,8 @@ def aggregate(scenes: Iterable[Mapping[str, Any]], with_std: bool = False) -> di
 
     Returns:
         ``{"EPE3D", "Acc3DS", "Acc3DR", "Outliers3D", "n_scenes", "n_points"}`` (``n_points`` summed)
-        plus ``"static"`` / ``"moving"`` dicts of the same form over the scenes that have such points.
+        plus subset dicts (:data:`SUBSETS`) of the same form over the scenes that have such points, and
+        ``"EPE3D_threeway"`` when all three three-way subsets are present.
 
     Raises:
         ValueError: when ``scenes`` is empty or a scene lacks a metric.
@@ -147,6 +206,9 @@ def aggregate(scenes: Iterable[Mapping[str, Any]], with_std: bool = False) -> di
         members = [s[subset] for s in scenes if subset in s]
         if members:
             out[subset] = _aggregate_flat(members, with_std)
+    tw = threeway(out)
+    if tw is not None:
+        out["EPE3D_threeway"] = tw
     return out
 
 
@@ -164,6 +226,9 @@ def mean_over_runs(runs: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for key in METRIC_NAMES:
             _mean_std([r[key] for r in items], True, key, out)
+        for key in (*OPTIONAL_METRICS, "EPE3D_threeway"):
+            if all(key in r for r in items):
+                _mean_std([r[key] for r in items], True, key, out)
         out["n_scenes"] = items[0].get("n_scenes")
         out["n_points"] = items[0].get("n_points")
         out["n_runs"] = len(items)

@@ -1,16 +1,32 @@
 """Scoring protocols: which points every method sees and which points are scored.
 
-``paper``: sample ``n_points`` from each cloud (seeded by the seed and the scene name; with replacement
-only when a cloud has fewer points), run every method on those clouds, and score ``n_score`` points of
-the sampled pc1 chosen by farthest-point sampling from its first point — the net's level-0 points
-(2048 of 8192 at the paper's settings), where the net's flow is its own output, not an interpolation.
-``full``: the same sampled input, but each method's flow is spread to *every* input point of pc1 by
-3-NN inverse-distance interpolation (exact at the sampled points) and all of them are scored.
+Every protocol samples each cloud with a generator seeded by (seed, CRC-32 of the scene name), runs every
+method on the same sampled clouds and scores the same points. The named protocols and the reference code
+each reproduces (file and line in ``docs/evaluation-protocols.md``):
 
-Every method sees exactly the same sampled clouds (as read-only arrays, in the same order) and is
-scored on exactly the same points. Metrics are per point → mean per scene → mean over scenes; with
-several seeds the table gives the mean over seeds and the population std over seeds. Frames: camera
-frame of frame 1 (pc1, flow) and of frame 2 (pc2), metres (see :mod:`evaluation.sample`).
+``released`` — 3DUnMonoFlow's released evaluation (``datasets/kitti_data.py`` + ``train.py:testOnce``):
+    ``n_points`` (8192) drawn at random without replacement from each cloud, pc2 independently of pc1;
+    a cloud with fewer points gives ``arange(n)`` followed by random repeats, *not shuffled*; the scored
+    points are the **first** ``n_score`` (2048) rows of the sampled pc1 (its level 0 takes the first
+    2048 with ``torch.split``, and the metric compares them with ``flow[:, :2048]``).
+``fps`` — the first ``n_score`` points by farthest-point sampling (from row 0) of ``n_points`` random
+    points, shuffled padding (monoflow's earlier ``paper`` protocol, kept bit for bit): the level-0
+    points of a net trained with ``sampling="fps"``, whose flow there is its own output. Farthest-point
+    sampling favours far, sparse points, so these are not the released code's points. ``paper`` is
+    accepted as the old name of ``fps``.
+``hplflownet`` — HPLFlowNet's KITTI protocol (``datasets/kitti.py`` + ``transforms.ProcessData``):
+    only the scenes whose line of the KITTI devkit ``train_mapping.txt`` is non-empty (142 of 200;
+    :func:`mapped_scenes`), ``n_points`` (8192) drawn without replacement from pc1 and, independently,
+    from pc2; a cloud with fewer points is used whole, in file order, without padding; **every** sampled
+    pc1 point is scored.
+``flownet3d`` — FlowNet3D's KITTI evaluation (``kitti_dataset.py`` + ``evaluate.py``): ``n_points``
+    (16384) with the released padding rule, every sampled row scored (repeats included).
+``full`` — the ``fps`` protocol's input, but each method's flow is spread to *every* input point of pc1
+    by 3-NN inverse-distance interpolation (exact at the sampled points) and all of them are scored.
+
+Metrics are per point → mean per scene → mean over scenes; with several seeds the table gives the mean
+over seeds and the population std over seeds. Frames: camera frame of frame 1 (pc1, flow) and of frame 2
+(pc2), metres (see :mod:`evaluation.sample`).
 """
 
 from __future__ import annotations
@@ -23,42 +39,65 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from evaluation.methods import FlowMethod
-from evaluation.metrics import aggregate, mean_over_runs, scene_metrics
+from evaluation.metrics import SUBSETS, aggregate, mean_over_runs, scene_metrics
 from evaluation.predictions import ScenePrediction
 from evaluation.sample import SceneFlowSample
 from pipeline.errors import ConfigError, InputError
 
-PROTOCOLS = ("paper", "full")
+PROTOCOLS = ("released", "fps", "hplflownet", "flownet3d", "full")
+ALIASES = {"paper": "fps"}  # monoflow's earlier name of the fps protocol
+# protocols that score a fixed-size prefix of the sample (n_score) / every sampled point / every input point
+PREFIX_SCORED = ("released", "fps")
+DEFAULT_POINTS = {"released": 8192, "fps": 8192, "hplflownet": 8192, "flownet3d": 16384, "full": 8192}
 
 
 @dataclass
 class ProtocolConfig:
     """How a split is scored.
 
-    protocol: ``"paper"`` or ``"full"`` (module docstring).
+    protocol: one of :data:`PROTOCOLS` (module docstring); ``"paper"`` is read as ``"fps"``.
     n_points: points sampled from each cloud (what every method sees).
-    n_score: scored points of the paper protocol (ignored by ``full``).
+    n_score: scored points of ``released`` (the first rows) and ``fps`` (farthest-point samples);
+        ignored by the protocols that score every sampled or input point.
     seeds: sampling seeds; more than one adds ``<metric>_std`` over seeds.
     warmup: run each method once, untimed, on the first scene before timing (first-call set-up such as
         thread pools and lazy imports is then not counted in the time per scene).
     """
 
-    protocol: str = "paper"
+    protocol: str = "fps"
     n_points: int = 8192
     n_score: int = 2048
     seeds: tuple[int, ...] = (0,)
     warmup: bool = True
 
     def validate(self) -> "ProtocolConfig":
+        """Check the settings and replace an alias (``paper``) by its protocol's name; returns self."""
+        self.protocol = ALIASES.get(self.protocol, self.protocol)
         if self.protocol not in PROTOCOLS:
-            raise ConfigError(f"unknown protocol {self.protocol!r}; expected one of {', '.join(PROTOCOLS)}")
+            raise ConfigError(f"unknown protocol {self.protocol!r}; expected one of {', '.join(PROTOCOLS)} "
+                              f"(or {', '.join(ALIASES)})")
         if self.n_points < 1 or self.n_score < 1:
             raise ConfigError(f"n_points and n_score must be >= 1, got {self.n_points} and {self.n_score}")
-        if self.protocol == "paper" and self.n_score > self.n_points:
+        if self.protocol in PREFIX_SCORED and self.n_score > self.n_points:
             raise ConfigError(f"n_score ({self.n_score}) cannot exceed n_points ({self.n_points})")
         if not self.seeds:
             raise ConfigError("at least one sampling seed is needed")
         return self
+
+    def scored_rule(self) -> str:
+        """One line saying which points are scored (report headers)."""
+        p, n, k = self.protocol, self.n_points, self.n_score
+        if p == "released":
+            return (f"the first {k} of {n} random points per cloud (released loader: fewer points are "
+                    "padded with arange(n) + random repeats, unshuffled)")
+        if p == "fps":
+            return f"{k} farthest-point samples (from row 0) of {n} random points per cloud"
+        if p == "hplflownet":
+            return (f"all {n} random points of pc1 (pc2 drawn independently; a smaller cloud is used whole), "
+                    "scenes with a raw-data mapping only")
+        if p == "flownet3d":
+            return f"all {n} sampled points of pc1, repeats included (released padding)"
+        return f"every input point of pc1 (methods run on {n} random points, flow spread by 3-NN)"
 
 
 @dataclass
@@ -84,8 +123,9 @@ class PreparedScene:
 
     pc1, pc2: (n_points, 3) sampled clouds (camera frames 1 and 2, metres); color1, color2 likewise or None.
     index1, index2: rows of the sample's pc1 / pc2 they were taken from.
-    score_index: (n_score,) rows of the sampled pc1 that are scored (paper), or None (full: every input point).
-    points, gt, moving: the scored points, their true flow and motion mask.
+    score_index: rows of the sampled pc1 that are scored, or None (``full``: every input point).
+    points, gt, moving: the scored points (camera-1 frame, metres), their true flow and motion mask.
+    foreground: the scored points' foreground flags (class ≠ 0), or None when the split has no classes.
     """
 
     name: str
@@ -101,6 +141,7 @@ class PreparedScene:
     gt: np.ndarray
     moving: np.ndarray | None
     pose: np.ndarray | None = None
+    foreground: np.ndarray | None = None
 
 
 def choose_points(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
@@ -114,6 +155,27 @@ def choose_points(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndar
     return rng.permutation(np.concatenate([np.arange(n_have), extra]))
 
 
+def released_points(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
+    """The released loaders' rule (3DUnMonoFlow / FlowNet3D ``SceneflowDataset``): ``n_want`` distinct
+    random rows when the cloud has enough, else ``arange(n_have)`` followed by ``n_want − n_have``
+    random repeats, in that order (so the first ``n_have`` rows are the file's points in file order)."""
+    if n_have < 1:
+        raise ValueError("cannot sample an empty cloud")
+    if n_have >= n_want:
+        return rng.choice(n_have, size=n_want, replace=False)
+    return np.concatenate([np.arange(n_have), rng.choice(n_have, size=n_want - n_have, replace=True)])
+
+
+def hplflownet_points(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
+    """HPLFlowNet's rule (``ProcessData``, ``allow_less_points``): ``n_want`` distinct random rows, or
+    every row in file order when the cloud has fewer (no padding)."""
+    if n_have < 1:
+        raise ValueError("cannot sample an empty cloud")
+    if n_have >= n_want:
+        return rng.choice(n_have, size=n_want, replace=False)
+    return np.arange(n_have)
+
+
 def scored_points(pc1_sampled: np.ndarray, n_score: int) -> np.ndarray:
     """Indices of the ``n_score`` farthest-point-sampled points (starting at index 0), like the net's L0."""
     import torch
@@ -121,7 +183,7 @@ def scored_points(pc1_sampled: np.ndarray, n_score: int) -> np.ndarray:
     from training.pointops import farthest_point_sample
 
     n = min(n_score, len(pc1_sampled))
-    pts = torch.from_numpy(np.ascontiguousarray(pc1_sampled, dtype=np.float32))[None]
+    pts = torch.from_numpy(np.array(pc1_sampled, dtype=np.float32))[None]  # a writable copy
     return farthest_point_sample(pts, n)[0].numpy()
 
 
@@ -151,21 +213,32 @@ def prepare_scene(sample: SceneFlowSample, cfg: ProtocolConfig, seed: int) -> Pr
     if sample.n1 == 0 or sample.n2 == 0:
         raise InputError(f"scene {sample.name}", f"empty cloud after the reader's filters (pc1 {sample.n1} points, "
                                                  f"pc2 {sample.n2})")
+    protocol = ALIASES.get(cfg.protocol, cfg.protocol)
     rng = np.random.default_rng([seed, zlib.crc32(sample.name.encode())])
-    s1 = choose_points(rng, sample.n1, cfg.n_points)
-    s2 = choose_points(rng, sample.n2, cfg.n_points)
+    draw = {"released": released_points, "flownet3d": released_points,
+            "hplflownet": hplflownet_points}.get(protocol, choose_points)
+    s1 = draw(rng, sample.n1, cfg.n_points)
+    s2 = draw(rng, sample.n2, cfg.n_points)  # drawn after, and independently of, pc1's sample
     pc1, pc2 = sample.pc1[s1], sample.pc2[s2]
     c1 = sample.color1[s1] if sample.color1 is not None else None
     c2 = sample.color2[s2] if sample.color2 is not None else None
-    if cfg.protocol == "paper":
-        idx = scored_points(pc1, cfg.n_score)
-        points, gt = pc1[idx], sample.flow[s1][idx]
-        moving = sample.moving[s1][idx] if sample.moving is not None else None
-    else:
+    fg_all = sample.foreground
+    if protocol == "full":
         idx = None
-        points, gt, moving = sample.pc1, sample.flow, sample.moving
+        points, gt, moving, fg = sample.pc1, sample.flow, sample.moving, fg_all
+    else:
+        if protocol == "fps":
+            idx = scored_points(pc1, cfg.n_score)
+        elif protocol == "released":
+            idx = np.arange(min(cfg.n_score, len(s1)))
+        else:  # hplflownet, flownet3d: every sampled row
+            idx = np.arange(len(s1))
+        rows = s1[idx]
+        points, gt = sample.pc1[rows], sample.flow[rows]
+        moving = sample.moving[rows] if sample.moving is not None else None
+        fg = fg_all[rows] if fg_all is not None else None
     return PreparedScene(sample.name, seed, *(_readonly(a) for a in (pc1, pc2, c1, c2)), s1, s2, idx,
-                         _readonly(points), _readonly(gt), _readonly(moving), sample.pose)
+                         _readonly(points), _readonly(gt), _readonly(moving), sample.pose, _readonly(fg))
 
 
 def predict(method: FlowMethod, scene: PreparedScene) -> np.ndarray:
@@ -222,7 +295,8 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
                 t0 = time.perf_counter()
                 pred = predict(m, scene)
                 seconds[m.name] += time.perf_counter() - t0
-                row = scene_metrics(pred, scene.gt, moving=scene.moving)
+                row = scene_metrics(pred, scene.gt, moving=scene.moving, foreground=scene.foreground,
+                                    depth=scene.points[:, 2])
                 row["name"] = sample.name
                 scenes[m.name].append(row)
                 if on_prediction is not None and seed == cfg.seeds[0]:
@@ -240,21 +314,28 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
 
 
 def summary_rows(results: Iterable[MethodResult]) -> list[dict[str, Any]]:
-    """Flat rows (one per method) for tables and CSV: metrics, their std over seeds, EPE3D on static /
-    moving points, time per scene, scenes and seeds."""
+    """Flat rows (one per method) for tables and CSV: metrics, their std over seeds, EPE3D on every subset
+    the split allows (static / moving, the three-way subsets and their mean, distance bands), the dynamic
+    normalised EPE, time per scene, scenes and seeds."""
     rows = []
     for r in results:
         m = r.metrics
         row: dict[str, Any] = {"method": r.name}
-        for key in ("EPE3D", "Acc3DS", "Acc3DR", "Outliers3D"):
+        for key in ("EPE3D", "Acc3DS", "Acc3DR", "Outliers3D", "EPE3D_threeway"):
+            if key not in m:
+                continue
             row[key] = m[key]
             if f"{key}_std" in m:
                 row[f"{key}_std"] = m[f"{key}_std"]
-        for subset in ("static", "moving"):
+        for subset in SUBSETS:
             if subset in m:
                 row[f"EPE3D_{subset}"] = m[subset]["EPE3D"]
                 if "EPE3D_std" in m[subset]:
                     row[f"EPE3D_{subset}_std"] = m[subset]["EPE3D_std"]
+        if "moving" in m and "EPE3D_norm" in m["moving"]:
+            row["EPE3D_norm_dynamic"] = m["moving"]["EPE3D_norm"]
+            if "EPE3D_norm_std" in m["moving"]:
+                row["EPE3D_norm_dynamic_std"] = m["moving"]["EPE3D_norm_std"]
         row["seconds_per_scene"] = r.seconds_per_scene
         row["n_scenes"] = m.get("n_scenes")
         row["n_seeds"] = m.get("n_runs", 1)

@@ -5,22 +5,28 @@ Formats (``fmt``):
 * ``"flownet3d"`` — FlowNet3D's ``kitti_rm_ground``: one ``*.npz`` per scene with ``pos1`` (N, 3),
   ``pos2`` (M, 3), ``gt`` (N, 3) in LiDAR-like axes (x fwd, y left, z up); camera = ``(−y, −z, x)``
   (see :mod:`evaluation.axes`). Optional arrays read when present: ``moving`` (N,) (our synthetic
-  generator writes it), ``color1`` (N, 3) and ``color2`` (M, 3) in [0, 1]. Optional depth limit
+  generator writes it), ``classes`` / ``instance`` (N,) integers (class 0 = background; our generator
+  writes them), ``color1`` (N, 3) and ``color2`` (M, 3) in [0, 1]. Optional depth limit
   (FLOT's protocol keeps camera z < 35 m in each cloud separately); off by default.
 * ``"hplflownet"`` — HPLFlowNet's ``KITTI_processed_occ_final``: one folder per scene with ``pc1.npy``
   and ``pc2.npy`` (N, 3) of corresponding points in stored axes ``(−x, −y, z)`` of the camera;
-  flow = ``pc2 − pc1``; optional ``moving.npy`` (N,). Filtering follows HPLFlowNet's own loader
+  flow = ``pc2 − pc1``; optional ``moving.npy``, ``classes.npy``, ``instance.npy`` (N,). Filtering
+  follows HPLFlowNet's own loader
   (``datasets/kitti.py`` + ``transforms.ProcessData.process_inference``), applied to the stored axes:
   ground is ``y_s < −1.4`` and a pair is dropped **only when both** its pc1 and pc2 points are ground
   (``is_ground = (pc1.y < −1.4) & (pc2.y < −1.4)``) — ``ground_rule="either"`` drops a pair when either
   point is ground instead; then pairs are kept where ``z_s < 35`` in **both** pc1 and pc2.
   HPLFlowNet additionally keeps only the 142 of 200 scenes that have a KITTI-raw mapping (its
-  ``KITTI_mapping.txt``); pass those scene names as ``names=`` to reproduce that.
+  ``KITTI_mapping.txt``, the devkit's ``train_mapping.txt``); ``monoflow-evaluate run --protocol
+  hplflownet --mapping FILE`` applies it (:func:`evaluation.scenes.mapped_scenes`), or pass the kept
+  names as ``names=``.
 * ``"opensceneflow"`` — OpenSceneFlow / DeFlow preprocessed HDF5: one ``<scene_id>.h5`` per scene, one
   group per timestamp (name = the integer timestamp) with ``lidar`` (N, ≥3, sensor/ego frame,
   LiDAR axes), ``pose`` (4, 4) ego→world, ``ground_mask`` (N,) and, on frames that have ground truth,
   ``flow`` (N, 3) (``lidar + flow`` is the point in the *next* frame's coordinates) and
-  ``flow_is_valid`` (N,), optionally ``ego_motion`` (4, 4) = ``T_{t→t+1}``. Consecutive timestamps are
+  ``flow_is_valid`` (N,), optionally ``ego_motion`` (4, 4) = ``T_{t→t+1}``,
+  ``flow_category_indices`` (N,) (passed through as ``classes``; 0 = background, as Argoverse 2) and
+  ``flow_instance_id`` (N,) (as ``instance``). Consecutive timestamps are
   paired; pairs whose first frame has no ``flow`` are skipped. Ground points are removed from both
   clouds, points with invalid flow from pc1; ``moving`` = ‖flow − ego flow‖ > ``moving_threshold``
   (0.05 m, Argoverse-2's 0.5 m/s at 10 Hz). Converted to camera axes like FlowNet3D's.
@@ -159,6 +165,17 @@ def _check_mask(name: str, shape: tuple[int, ...], dtype: np.dtype, rows: int) -
     return None
 
 
+def _check_labels(name: str, shape: tuple[int, ...], dtype: np.dtype, rows: int) -> str | None:
+    if shape != (rows,):
+        return f"'{name}' must have shape ({rows},), got {shape}"
+    if dtype.kind not in "biu":
+        return f"'{name}' must be integer, got dtype {dtype}"
+    return None
+
+
+LABELS = ("classes", "instance")
+
+
 # ----------------------------------------------------------------------------------------------------
 # FlowNet3D kitti_rm_ground
 
@@ -179,6 +196,9 @@ def _validate_flownet3d(entry: _Entry) -> None:
     ]
     if "moving" in specs:
         checks.append(_check_mask("moving", *specs["moving"], rows=n))
+    for key in LABELS:
+        if key in specs:
+            checks.append(_check_labels(key, *specs[key], rows=n))
     if "color1" in specs:
         checks.append(_check_points("color1", *specs["color1"], rows=n))
     if "color2" in specs:
@@ -191,20 +211,22 @@ def _validate_flownet3d(entry: _Entry) -> None:
 
 def _load_flownet3d(entry: _Entry, opts: FlowNet3DOptions) -> SceneFlowSample:
     with np.load(entry.path) as data:
-        arrays = {k: data[k] for k in ("pos1", "pos2", "gt", "moving", "color1", "color2") if k in data}
+        arrays = {k: data[k] for k in ("pos1", "pos2", "gt", "moving", "color1", "color2", *LABELS) if k in data}
     pc1 = lidar_to_camera(arrays["pos1"].astype(np.float32))
     pc2 = lidar_to_camera(arrays["pos2"].astype(np.float32))
     flow = lidar_to_camera(arrays["gt"].astype(np.float32))
     moving = arrays.get("moving")
     color1, color2 = arrays.get("color1"), arrays.get("color2")
+    classes, instance = arrays.get("classes"), arrays.get("instance")
     if opts.max_depth is not None:
         keep1 = pc1[:, 2] < opts.max_depth
         keep2 = pc2[:, 2] < opts.max_depth
         pc1, flow, pc2 = pc1[keep1], flow[keep1], pc2[keep2]
-        moving = None if moving is None else moving[keep1]
-        color1 = None if color1 is None else color1[keep1]
+        moving, color1, classes, instance = (None if a is None else a[keep1]
+                                             for a in (moving, color1, classes, instance))
         color2 = None if color2 is None else color2[keep2]
-    return SceneFlowSample(entry.name, pc1, pc2, flow, color1=color1, color2=color2, moving=moving)
+    return SceneFlowSample(entry.name, pc1, pc2, flow, color1=color1, color2=color2, moving=moving,
+                           classes=classes, instance=instance)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -214,10 +236,10 @@ def _load_flownet3d(entry: _Entry, opts: FlowNet3DOptions) -> SceneFlowSample:
 def _validate_hplflownet(entry: _Entry) -> None:
     problems: list[str] = []
     specs: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
-    for fname in ("pc1.npy", "pc2.npy", "moving.npy"):
+    for fname in ("pc1.npy", "pc2.npy", "moving.npy", "classes.npy", "instance.npy"):
         fpath = entry.path / fname
         if not fpath.is_file():
-            if fname != "moving.npy":
+            if fname in ("pc1.npy", "pc2.npy"):
                 problems.append(f"missing {fname}")
             continue
         try:
@@ -232,6 +254,9 @@ def _validate_hplflownet(entry: _Entry) -> None:
             problems.append(_check_points("pc2.npy", *specs["pc2.npy"], rows=n) or "")
         if "moving.npy" in specs:
             problems.append(_check_mask("moving.npy", *specs["moving.npy"], rows=n) or "")
+        for key in LABELS:
+            if f"{key}.npy" in specs:
+                problems.append(_check_labels(f"{key}.npy", *specs[f"{key}.npy"], rows=n) or "")
     problems = [p for p in problems if p]
     if problems:
         raise ValueError("; ".join(problems))
@@ -240,8 +265,10 @@ def _validate_hplflownet(entry: _Entry) -> None:
 def _load_hplflownet(entry: _Entry, opts: HPLFlowNetOptions) -> SceneFlowSample:
     pc1 = np.load(entry.path / "pc1.npy").astype(np.float32)
     pc2 = np.load(entry.path / "pc2.npy").astype(np.float32)
-    moving_path = entry.path / "moving.npy"
-    moving = np.load(moving_path) if moving_path.is_file() else None
+    optional = {}
+    for key in ("moving", *LABELS):
+        path = entry.path / f"{key}.npy"
+        optional[key] = np.load(path) if path.is_file() else None
     keep = np.ones(len(pc1), dtype=bool)
     if opts.remove_ground:
         g1 = pc1[:, 1] < -opts.ground_height
@@ -251,9 +278,10 @@ def _load_hplflownet(entry: _Entry, opts: HPLFlowNetOptions) -> SceneFlowSample:
         keep &= (pc1[:, 2] < opts.max_depth) & (pc2[:, 2] < opts.max_depth)
     pc1, pc2 = pc1[keep], pc2[keep]
     flow = pc2 - pc1
-    moving = None if moving is None else moving[keep]
+    moving, classes, instance = (None if optional[k] is None else optional[k][keep] for k in ("moving", *LABELS))
     return SceneFlowSample(
-        entry.name, hpl_to_camera(pc1), hpl_to_camera(pc2), hpl_to_camera(flow), moving=moving
+        entry.name, hpl_to_camera(pc1), hpl_to_camera(pc2), hpl_to_camera(flow), moving=moving,
+        classes=classes, instance=instance,
     )
 
 
@@ -315,6 +343,9 @@ def _validate_osf_file(path: Path) -> None:
                     problems.append(
                         f"group {t}: 'flow_is_valid' must be ({n},), got {g['flow_is_valid'].shape}"
                     )
+                for key in ("flow_category_indices", "flow_instance_id"):
+                    if key in g and g[key].shape != (n,):
+                        problems.append(f"group {t}: '{key}' must be ({n},), got {g[key].shape}")
                 if "ego_motion" in g and g["ego_motion"].shape != (4, 4):
                     problems.append(f"group {t}: 'ego_motion' must be (4, 4), got {g['ego_motion'].shape}")
         if n_flow == 0 and not problems:
@@ -335,6 +366,8 @@ def _load_opensceneflow(entry: _Entry, opts: OpenSceneFlowOptions) -> SceneFlowS
         gm2 = np.asarray(g1["ground_mask"][:], dtype=bool)
         flow = np.asarray(g0["flow"][:], dtype=np.float64)
         valid = np.asarray(g0["flow_is_valid"][:], dtype=bool) if "flow_is_valid" in g0 else None
+        classes = np.asarray(g0["flow_category_indices"][:]) if "flow_category_indices" in g0 else None
+        instance = np.asarray(g0["flow_instance_id"][:]) if "flow_instance_id" in g0 else None
         if "ego_motion" in g0:
             pose = np.asarray(g0["ego_motion"][:], dtype=np.float64)
         else:
@@ -349,6 +382,8 @@ def _load_opensceneflow(entry: _Entry, opts: OpenSceneFlowOptions) -> SceneFlowS
     if opts.valid_only and valid is not None:
         keep1 &= valid
     pc1, flow, moving, pc2 = pc1[keep1], flow[keep1], moving[keep1], pc2[keep2]
+    classes = None if classes is None else classes[keep1]
+    instance = None if instance is None else instance[keep1]
     if opts.to_camera:
         pc1, pc2, flow = lidar_to_camera(pc1), lidar_to_camera(pc2), lidar_to_camera(flow)
         pose = conjugate_pose(LIDAR_TO_CAMERA, pose)
@@ -359,6 +394,8 @@ def _load_opensceneflow(entry: _Entry, opts: OpenSceneFlowOptions) -> SceneFlowS
         flow.astype(np.float32),
         moving=moving,
         pose=pose,
+        classes=classes,
+        instance=instance,
     )
 
 

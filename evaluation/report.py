@@ -9,7 +9,11 @@ from typing import Any, Sequence
 
 COLUMNS = (("EPE3D", "EPE3D (m)↓"), ("Acc3DS", "Acc3DS↑"), ("Acc3DR", "Acc3DR↑"), ("Outliers3D", "Outliers3D↓"),
            ("EPE3D_static", "EPE3D static↓"), ("EPE3D_moving", "EPE3D moving↓"),
+           ("EPE3D_threeway", "EPE3D 3-way↓"), ("EPE3D_norm_dynamic", "dyn. norm. EPE↓"),
+           ("EPE3D_z0-20", "EPE3D z<20 m↓"), ("EPE3D_z20-35", "EPE3D z 20–35 m↓"),
+           ("EPE3D_z35+", "EPE3D z≥35 m↓"),
            ("seconds_per_scene", "time/scene (s)"))
+# Also in results.csv / .json (not in the Markdown table): EPE3D_bg_static, EPE3D_fg_static, EPE3D_fg_dynamic.
 
 
 def _cell(row: dict[str, Any], key: str) -> str:

@@ -38,6 +38,9 @@ class SceneFlowSample:
         color2: optional (M, 3) float32 RGB of pc2 in [0, 1].
         moving: optional (N,) bool, True where the pc1 point belongs to an independently moving object.
         pose: optional (4, 4) float64 ``T_{1→2}`` (camera 1 → camera 2).
+        classes: optional (N,) int32 semantic class of each pc1 point, 0 = background (anything that is
+            not a foreground object class; the three-way EPE's foreground is ``classes != 0``).
+        instance: optional (N,) int32 object instance of each pc1 point (the split's own ids).
     """
 
     name: str
@@ -48,6 +51,8 @@ class SceneFlowSample:
     color2: np.ndarray | None = None
     moving: np.ndarray | None = None
     pose: np.ndarray | None = None
+    classes: np.ndarray | None = None
+    instance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -77,6 +82,16 @@ class SceneFlowSample:
                     raise ValueError("moving must be boolean (or 0/1)")
                 mov = mov.astype(bool)
             self.moving = np.ascontiguousarray(mov)
+        for attr in ("classes", "instance"):
+            value = getattr(self, attr)
+            if value is None:
+                continue
+            arr = np.asarray(value)
+            if arr.shape != (n,):
+                raise ValueError(f"{attr} must have shape ({n},), got {arr.shape}")
+            if arr.dtype.kind not in "biu":
+                raise ValueError(f"{attr} must be integer, got dtype {arr.dtype}")
+            setattr(self, attr, np.ascontiguousarray(arr, dtype=np.int32))
         if self.pose is not None:
             pose = np.asarray(self.pose, dtype=np.float64)
             if pose.shape != (4, 4):
@@ -89,6 +104,11 @@ class SceneFlowSample:
             if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
                 raise ValueError("pose's rotation block is not a rotation matrix")
             self.pose = pose
+
+    @property
+    def foreground(self) -> np.ndarray | None:
+        """(N,) bool, True on foreground-class points (``classes != 0``), or None without classes."""
+        return None if self.classes is None else self.classes != 0
 
     @property
     def n1(self) -> int:
@@ -111,4 +131,6 @@ class SceneFlowSample:
             color2=self.color2,
             moving=None if self.moving is None else self.moving[index],
             pose=self.pose,
+            classes=None if self.classes is None else self.classes[index],
+            instance=None if self.instance is None else self.instance[index],
         )

@@ -60,7 +60,9 @@ def test_run_end_to_end_and_rescore(world: Path, checkpoint: Path, tmp_path: Pat
     printed = capsys.readouterr().out
     assert rc == 0
     assert "| Method | EPE3D (m)↓" in printed and "| ours (run, step 3) |" in printed and "| icp-p2p |" in printed
-    assert "256 points sampled, 64 scored" in printed  # the net's own sizes
+    # the header names the protocol, the scored-point rule (the net's own sizes), the seeds and the scenes
+    assert ("2 scenes of " in printed and "protocol fps: scored 64 farthest-point samples (from row 0) of 256 "
+            "random points per cloud; seeds [0]" in printed)
     assert (out / "results.md").read_text().strip() in printed
     report = json.loads((out / "results.json").read_text())
     assert [r["method"] for r in report["rows"]] == ["ours (run, step 3)", "zero", "icp-p2p"]
@@ -76,6 +78,10 @@ def test_run_end_to_end_and_rescore(world: Path, checkpoint: Path, tmp_path: Pat
         assert scored["method"] == row["method"]
         assert scored["EPE3D"] == pytest.approx(row["EPE3D"], rel=1e-12)
         assert scored["Acc3DS"] == pytest.approx(row["Acc3DS"], rel=1e-12)
+        bands = [k for k in row if k.startswith("EPE3D_z") and not k.endswith("_std")]
+        assert bands  # the distance bands are in the run's rows and recomputed from the saved points
+        for key in bands:
+            assert scored[key[len("EPE3D_"):]]["EPE3D"] == pytest.approx(row[key], rel=1e-12)
         assert scored["n_scenes"] == 2
     # zero flow: the saved predicted flow is zero and its EPE is the mean |gt| (by hand from the file)
     zero = read_predictions(out / "predictions-zero.h5")
@@ -105,6 +111,38 @@ def test_net_scores_its_own_level0_points(world: Path, checkpoint: Path) -> None
     np.testing.assert_array_equal(np.sort(idx), np.sort(scene.score_index))
     flow = net(scene.pc1, scene.pc2)
     np.testing.assert_allclose(flow[idx], out.flows[0][0].numpy(), atol=1e-5)
+
+
+def test_synthetic_test_split_marks_class_and_instance_per_point(world: Path) -> None:
+    """The writer labels every pc1 point: class 1 (car) on movers and parked cars, 0 elsewhere; the readers
+    of both layouts pass the labels through their own filters."""
+    for fmt in ("flownet3d", "hplflownet"):
+        split = load_split(world / "sceneflow" / fmt)
+        for s in split:
+            assert s.classes is not None and s.instance is not None and len(s.classes) == s.n1
+            assert set(np.unique(s.classes).tolist()) <= {0, 1}
+            assert np.all(s.classes[s.moving] == 1)  # every mover is a car
+            for inst in np.unique(s.instance[s.classes == 1]):  # one class and one motion per instance
+                on = s.instance == inst
+                assert np.all(s.classes[on] == 1) and len(np.unique(s.moving[on])) == 1
+
+
+def test_guard_refuses_scenes_the_checkpoint_trained_on(world: Path, checkpoint: Path, tmp_path: Path,
+                                                        capsys) -> None:
+    run = tmp_path / "ft"
+    run.mkdir()
+    ckpt = run / "latest.pt"
+    shutil.copy(checkpoint, ckpt)
+    (run / "train_scenes.txt").write_text("000001\n")
+    split = world / "sceneflow" / "flownet3d"
+    args = ["run", "--split", str(split), "--checkpoint", str(ckpt), "--baselines", "", "--out",
+            str(tmp_path / "e"), "--no-progress", "--device", "cpu"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "trained on 1 of the scenes" in err and "train_scenes.txt" in err
+    assert main([*args, "--scenes", "first:1"]) == 0  # disjoint scenes are scored
+    report = json.loads((tmp_path / "e" / "results.json").read_text())
+    assert report["scenes"] == ["000000"] and report["selection"]["scenes"] == "first:1"
 
 
 def test_malformed_split_is_one_error_line(world: Path, checkpoint: Path, tmp_path: Path, capsys) -> None:
@@ -168,7 +206,7 @@ def test_two_checkpoints_of_same_named_runs_get_distinct_names(world: Path, chec
     assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) #2"]
     assert rows[0]["EPE3D"] != rows[1]["EPE3D"]  # different weights, scored separately
     assert rows[0]["n_scenes"] == 1 and rows[0]["n_seeds"] == 2 and "EPE3D_std" in rows[0]
-    assert "all scored, seeds [0, 1]" in capsys.readouterr().out
+    assert "protocol full: scored every input point of pc1" in capsys.readouterr().out
 
 
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:

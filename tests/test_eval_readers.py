@@ -135,7 +135,7 @@ def test_hplflownet_filters_follow_hplflownet(tmp_path: Path) -> None:
 # OpenSceneFlow HDF5
 
 
-def _write_osf(path: Path) -> dict[str, np.ndarray]:
+def _write_osf(path: Path, labels: bool = False) -> dict[str, np.ndarray]:
     """Three frames; the ego vehicle drives 1 m forward (+x) between frames; one car drives 2 m left."""
     import h5py
 
@@ -159,6 +159,9 @@ def _write_osf(path: Path) -> dict[str, np.ndarray]:
                 nxt = np.concatenate([static, ground, car_world[i + 1]]) - [float(i + 1), 0.0, 0.0]
                 g.create_dataset("flow", data=(nxt - lidar).astype(np.float32))
                 g.create_dataset("flow_is_valid", data=np.array([1, 1, 0, 1, 1], bool))
+                if labels:  # Argoverse-2 categories (0 = background, 1 = regular vehicle) and instances
+                    g.create_dataset("flow_category_indices", data=np.array([0, 0, 0, 0, 1], np.uint8))
+                    g.create_dataset("flow_instance_id", data=np.array([-1, -1, -1, -1, 7], np.int16))
     return {"pts0": pts0}
 
 
@@ -175,6 +178,7 @@ def test_opensceneflow_pairs_axes_and_masks(tmp_path: Path) -> None:
     # the car: −1 m forward and +2 m left in LiDAR axes -> camera (−2, 0, −1)
     np.testing.assert_allclose(s.flow[2], [-2.0, 0.0, -1.0], atol=1e-6)
     assert s.moving.tolist() == [False, False, True]
+    assert s.classes is None and s.instance is None  # this file has no labels
     # camera-axes pose reproduces the static flow: T(p) − p
     static = s.pc1[:2] @ s.pose[:3, :3].T + s.pose[:3, 3] - s.pc1[:2]
     np.testing.assert_allclose(static, s.flow[:2], atol=1e-6)
@@ -184,6 +188,14 @@ def test_opensceneflow_pairs_axes_and_masks(tmp_path: Path) -> None:
     )[0]
     assert keep_all.n1 == 5 and keep_all.n2 == 5
     np.testing.assert_allclose(keep_all.flow[0], [-1.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_opensceneflow_passes_classes_and_instances_through(tmp_path: Path) -> None:
+    _write_osf(tmp_path / "scene_a.h5", labels=True)
+    s = load_split(tmp_path)[0]
+    # ground (index 3) and invalid flow (index 2) removed, as for every other per-point array
+    assert s.classes.tolist() == [0, 0, 1] and s.instance.tolist() == [-1, -1, 7]
+    assert s.foreground.tolist() == [False, False, True]
 
 
 # ------------------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from pipeline.synth.config import SynthConfig
 from pipeline.synth.groundtruth import moving_mask, scene_flow, visible_in_next
 from pipeline.synth.render import render_camera
 from pipeline.synth.rig import Rig
-from pipeline.synth.sceneflow_export import ScanGT
+from pipeline.synth.sceneflow_export import ScanGT, object_classes
 from pipeline.synth.world import GROUND_CATEGORIES, World
 from pipeline.synth.writer import frame_name, save_npz
 
@@ -97,5 +97,7 @@ def generate_frame(job: SequenceJob, k: int) -> FrameResult:
         fov = np.flatnonzero(in_image(uv, H, W) & (z > 1e-3))
         ground_ids = np.array([o.category in GROUND_CATEGORIES for o in w.objects])
         flow = None if last else scene_flow(w, k, sc.points_map[fov], sc.obj[fov], p[fov], M2n)[0]
-        gt = ScanGT(points=p[fov], flow=flow, moving=moving_mask(w, sc.obj[fov]), ground=ground_ids[sc.obj[fov]])
+        obj = sc.obj[fov]
+        gt = ScanGT(points=p[fov], flow=flow, moving=moving_mask(w, obj), ground=ground_ids[obj],
+                    classes=object_classes([o.category for o in w.objects], obj), instance=obj.astype(np.int32))
     return FrameResult(k=k, scan_points=len(sc.points), scan_gt=gt)
