@@ -54,7 +54,7 @@ def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int
     """``{split: {method: summary row}}`` under the paper protocol at the net's point counts."""
     from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
 
-    cfg = ProtocolConfig(protocol="paper", n_points=n_points, n_score=n_score, seeds=tuple(seeds), warmup=False)
+    cfg = ProtocolConfig(protocol="fps", n_points=n_points, n_score=n_score, seeds=tuple(seeds), warmup=False)
     out = {}
     for name, split in splits.items():
         rows = summary_rows(run_protocol(split, methods, cfg, progress=False))

@@ -184,11 +184,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--subset", default="all", choices=("train", "val", "all"))
     p.add_argument("--pairs-max", type=int, default=16)
     p.add_argument("--n-points", type=int, default=2048)
+    p.add_argument("--beta", default="", help="loss weights β1..β4 (depth, DS, Chamfer, Laplacian), comma list; "
+                                             "default: LossWeights'")
     args = p.parse_args(argv)
 
     def run(_):
+        weights = LossWeights(beta=tuple(float(b) for b in args.beta.split(","))) if args.beta else LossWeights()
         cfg = AuditConfig(cache=args.cache, checkpoint=args.checkpoint, subset=args.subset,
-                          pairs_max=args.pairs_max, n_points=args.n_points)
+                          pairs_max=args.pairs_max, n_points=args.n_points, weights=weights)
         print(format_rows(audit(cfg)))
         return 0
 
