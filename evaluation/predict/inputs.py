@@ -171,6 +171,12 @@ def _kitti_input(src: Path, work: Path, name: str, camera: str, intrinsics: str,
     else:
         for f in frames:
             _link_or_copy(f, img_dir / f.name)
+    if stride == 1:  # dataset depth, LiDAR, disparity, ground truth: the same frame ids, linked whole
+        for extra in src.iterdir():
+            target = seq_dir / extra.name
+            if extra.name in (camera, "calib.txt") or target.exists() or target.is_symlink():
+                continue
+            os.symlink(extra.resolve(), target)
     if intrinsics:
         (seq_dir / "calib.txt").write_text(_calib_text(parse_intrinsics(intrinsics, camera)))
     else:

@@ -315,6 +315,7 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
         raise ConfigError(warnings[0] + " (--scale.refuse_non_metric true)")
     for w in warnings:
         print(f"WARNING: {w}", file=sys.stderr)
+    predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed)  # fails early on a bad file
     name = cfg.name or default_name(cfg.input)
     out = Path(cfg.out)
     h5_path = out / f"{name}.h5"
@@ -336,7 +337,6 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
         raise InputError(seq.image_dir, "no consecutive frame pairs")
     names = [[pair_name(name, seq.frames[i], seq.frames[j]) for i, j in p.pairs] for p in plans]
     done_before = sum(_part_path(parts, n).is_file() for ns in names for n in ns)
-    predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed)
     if predictor.method.uses_colour and prepared.camera in ("image_0", "image_1"):
         warnings.append("the flow net was trained with colour features; these grey frames give it grey colours")
     processor: BlockProcessor | None = None
