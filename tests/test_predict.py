@@ -157,6 +157,7 @@ def test_predict_resumes_from_finished_pairs(synth_root, tmp_path, flow_ckpt, mo
             assert np.array_equal(a["pairs"][name]["flow"][...], b["pairs"][name]["flow"][...])
 
 
+@pytest.mark.slow
 def test_image_folder_and_video_inputs(synth_root, tmp_path, flow_ckpt):
     """A plain folder of images and a video (OpenCV) run with given intrinsics (random depth net, fixed scale)."""
     import cv2
