@@ -49,7 +49,9 @@ class DepthDataConfig:
 class DepthLossConfig:
     """Weights and switches of SC-SfMLearner's loss (images in [0, 1] for the photometric terms).
 
-    photo_weight · photometric + smooth_weight · smoothness + geometry_weight · geometry consistency.
+    photo_weight, smooth_weight, geometry_weight: the loss is photo_weight · photometric + smooth_weight ·
+        smoothness + geometry_weight · geometry consistency.
+    with_ssim: include the SSIM term in the photometric error (else plain L1).
     ssim_weight: photometric per pixel = (1 − ssim_weight)·|ΔI| + ssim_weight·(1 − SSIM)/2.
     with_mask: weight the photometric error by the self-discovered mask 1 − D_diff.
     with_auto_mask: keep only pixels whose warped error is below the un-warped (static) error.
@@ -90,6 +92,7 @@ class DepthLossConfig:
 class DepthModelConfig:
     """ResNet depth of both nets and an optional local ImageNet initialisation (nothing is downloaded).
 
+    depth_layers, pose_layers: ResNet depth (18 or 50) of the depth (DispResNet) and pose (PoseResNet) encoders.
     imagenet_weights: path of a torchvision ``resnet18-*.pth`` / ``resnet50-*.pth`` state dict, or empty for
         random (Kaiming) initialisation.
     """
@@ -101,7 +104,13 @@ class DepthModelConfig:
 
 @dataclass
 class DepthOptimConfig:
-    """Adam (the released code: lr 1e-4, β = (0.9, 0.999), no weight decay, batch 4)."""
+    """Adam (the released code: lr 1e-4, β = (0.9, 0.999), no weight decay, batch 4).
+
+    lr: learning rate.
+    beta1, beta2: Adam's moment decay rates.
+    weight_decay: L2 weight decay (0 = none).
+    batch_size: snippets per optimiser step (global, over all processes).
+    """
 
     lr: float = 1e-4
     beta1: float = 0.9
@@ -131,7 +140,16 @@ class DepthEvalConfig:
 
 @dataclass
 class DepthTrainConfig:
-    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` snippets)."""
+    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` snippets).
+
+    run_dir: run folder (config.json, train.csv / val.csv, official-format checkpoints; ``latest.pt`` to resume).
+    steps: optimiser steps of the run.
+    seed: seed of every RNG (Python, numpy, torch).
+    device: auto | cpu | cuda[:i] (auto = the GPU when there is one).
+    deterministic: ask torch for deterministic kernels (warn only).
+    log_every, val_every, ckpt_every: in steps; the last step always validates and checkpoints.
+    progress: tqdm progress bar.
+    """
 
     run_dir: str = "runs/depth"
     steps: int = 1000
