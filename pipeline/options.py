@@ -175,18 +175,13 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def _metavar(tp: Any) -> str:
-    origin = typing.get_origin(tp)
+def _metavar(tp: Any) -> str | None:
+    """``{true,false}`` for booleans, ``A,B,...`` for tuples, else argparse's own (the flag's name)."""
     if tp is bool:
         return "{true,false}"
-    if origin is typing.Literal:
-        return "{" + ",".join(map(str, typing.get_args(tp))) + "}"
-    if origin in (tuple, list):
+    if tp in (tuple, list) or typing.get_origin(tp) in (tuple, list):
         return "A,B,..."
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        inner = [a for a in typing.get_args(tp) if a is not type(None)]
-        return (_metavar(inner[0]) if len(inner) == 1 else "VALUE") + "|none"
-    return {int: "INT", float: "FLOAT", str: "TEXT"}.get(tp, "VALUE")
+    return None
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
