@@ -135,8 +135,10 @@ def pair_picture(path: str | Path, pair: Any, image: np.ndarray, K: np.ndarray, 
     end_t = (pair.pc1.astype(np.float64) + pair.flow) @ Tinv[:3, :3].T + Tinv[:3, 3]
     own = end_t - pair.pc1
     rng = np.random.default_rng(0)
-    ax3.scatter(pc2_t[:, 0], pc2_t[:, 2], s=0.3, c="tab:orange", alpha=0.35, linewidths=0, label="pc2 (in camera t)")
-    ax3.scatter(pair.pc1[:, 0], pair.pc1[:, 2], s=0.3, c="tab:blue", alpha=0.35, linewidths=0, label="pc1")
+    ax3.scatter(pc2_t[:, 0], pc2_t[:, 2], s=1.5, c="tab:orange", alpha=0.5, linewidths=0, label="pc2 (in camera t)",
+                rasterized=True)
+    ax3.scatter(pair.pc1[:, 0], pair.pc1[:, 2], s=1.5, c="tab:blue", alpha=0.5, linewidths=0, label="pc1",
+                rasterized=True)
     mv = np.flatnonzero(moving)
     st = np.flatnonzero(~moving)
     pick = np.concatenate([rng.choice(mv, min(len(mv), max_arrows // 2), replace=False) if len(mv) else mv,
@@ -150,7 +152,7 @@ def pair_picture(path: str | Path, pair: Any, image: np.ndarray, K: np.ndarray, 
     ax3.set_aspect("equal", adjustable="datalim")
     ax3.set_title("top-down, camera-t frame: arrows = each point's own motion (camera motion removed; red = "
                   "moving)", fontsize=9)
-    ax3.legend(loc="upper right", fontsize=8, markerscale=12)
+    ax3.legend(loc="upper right", fontsize=8, markerscale=6)
     ax4 = fig.add_subplot(gs[2, 1])
     ax4.axis("off")
     t = np.asarray(pair.T)[:3, 3]
@@ -186,8 +188,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
 
 def training_curves(run_dir: str | Path, path: str | Path | None = None) -> Path:
     """``<run_dir>/curves.png`` (or ``path``) from ``train.csv`` and ``val.csv`` of a monoflow-train or
-    monoflow-train-depth run: the training loss terms (log scale; per-level columns ``l{k}/…`` left out) and
-    one panel per validation metric, all against the step."""
+    monoflow-train-depth run: the training loss and its terms (log scale; of per-level terms ``l{k}/…`` the
+    finest level's) and one panel per validation metric, all against the step."""
     Figure, Canvas = require_matplotlib()
     run = Path(run_dir)
     train = _read_csv(run / "train.csv")
@@ -195,6 +197,10 @@ def training_curves(run_dir: str | Path, path: str | Path | None = None) -> Path
     if not train and not val:
         raise InputError(run, "no train.csv or val.csv in this folder (not a monoflow run folder?)")
     tcols = [k for k in train if "step" != k and "/" not in k and not any(s in k for s in _SKIP)]
+    if "loss" in tcols and "total" in tcols:
+        tcols.remove("total")
+    # per-level terms (monoflow-train: l0/<term> … l3/<term>): the finest level's terms
+    tcols += [k for k in train if k.startswith("l0/") and k.split("/", 1)[1] not in ("weighted", "depth1", "depth2")]
     vcols = [k for k in val if k != "step" and not any(s in k for s in _SKIP)][:6]
     n = 1 + len(vcols)
     ncol = min(n, 3)
@@ -210,7 +216,7 @@ def training_curves(run_dir: str | Path, path: str | Path | None = None) -> Path
         ax.plot(steps[ok], y[ok], lw=1.2 if k == "loss" else 0.9, label=k, color="black" if k == "loss" else None)
     ax.set_yscale("log")
     ax.set_xlabel("step")
-    ax.set_title(f"{run.name}: training loss terms", fontsize=10)
+    ax.set_title(f"{run.name}: training loss (black) and its terms", fontsize=10)
     if tcols:
         ax.legend(fontsize=7)
     vsteps = val.get("step", np.arange(len(next(iter(val.values()))) if val else 0))

@@ -88,9 +88,10 @@ def top_down(path: Path, predictions: Sequence[ScenePrediction], background: np.
         ax.set_title(f"{pred.method}\nEPE3D {err.mean():.3f} m (arrows: black predicted, green true)", fontsize=8)
         ax.set_xlabel("x (m, right)")
         ax.set_aspect("equal", adjustable="datalim")
-        fig.colorbar(sc, ax=ax, label="EPE3D (m), this panel's scale", shrink=0.8)
+        fig.colorbar(sc, ax=ax, label="EPE3D (m)", shrink=0.8, pad=0.02)
     axes[0].set_ylabel("z (m, forward)")
-    fig.suptitle(f"scene {predictions[0].name}, top-down (camera frame of frame 1)", fontsize=9)
+    fig.suptitle(f"scene {predictions[0].name}, top-down (camera frame of frame 1); each panel has its own "
+                 "colour scale", fontsize=9)
     fig.savefig(path)
     return path
 
