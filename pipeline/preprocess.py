@@ -778,12 +778,13 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
 
     threads = max(1, (os.cpu_count() or 1) // config.workers)
     deferred_plans: list[BlockPlan] = []
-    finished: list[BlockResult] = []
+    results: list[BlockResult] = []
     done_outer = done
 
     def done(res: BlockResult) -> None:  # noqa: F811  (keeps the good factors for deferred blocks)
-        finished.append(res)
+        results.append(res)
         done_outer(res)
+
     args = (dataclasses.asdict(config), str(root), cache_cfg, source, threads)
     error: MonoflowError | None = None
     with ProcessPoolExecutor(config.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
@@ -814,7 +815,7 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
         from pipeline.cache.writer import CacheWriter
 
         processor = BlockProcessor(config)
-        for res in sorted(finished, key=lambda r: r.index):
+        for res in sorted(results, key=lambda r: r.index):
             if not res.carried:
                 processor.good_factors.setdefault(res.sequence, []).append(res.scale)
         writer = CacheWriter(root, cache_cfg, source)

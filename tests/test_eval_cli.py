@@ -181,7 +181,7 @@ def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path
     from evaluation.plots import write_plots
     from pipeline.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"pip install monoflow\[plots\]"):
+    with pytest.raises(ConfigError, match=r"pip install matplotlib"):
         write_plots(tmp_path, [], [], [], ProtocolConfig())
 
 
