@@ -75,7 +75,8 @@ def _evaluate(args, cfg) -> int:
     from training.runtime.device import resolve_device
 
     disp, pose = _checkpoint_paths(args, cfg)
-    seqs = expand_ids(cfg.data.root, cfg.data.val_sequences) or find_sequences(cfg.data.root)
+    wanted = tuple(s for s in cfg.data.val_sequences if str(s) != "none")
+    seqs = expand_ids(cfg.data.root, wanted) or find_sequences(cfg.data.root)
     hw = check_size(cfg.data.width, cfg.data.height)
     metrics = evaluate_checkpoints(disp, pose, cfg.data.root, seqs, cfg.data.camera, hw, cfg.eval,
                                    resolve_device(cfg.device))
