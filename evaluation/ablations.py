@@ -78,31 +78,27 @@ class AblationConfig:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world", default="cache/demo/world", help="KITTI-layout dataset root (synthetic world)")
     p.add_argument("--split", default="", help="test split (default <world>/sceneflow/flownet3d)")
-    p.add_argument("--out", default="runs/ablations")
+    p.add_argument("--out", default="runs/ablations", help="folder for the tables, runs and caches of the variants")
     p.add_argument("--tables", default="II,III", help="II (losses), III (ground/sky), or both")
     p.add_argument("--sequences", default="",
                    help="training sequences, comma list (default: the world's training sequences per synth.json)")
     p.add_argument("--steps", type=int, default=200, help="training steps per variant (the budget)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="training and sampling seed of every variant")
     p.add_argument("--size", default="416x128", help="stage-one working size")
     p.add_argument("--depth", default="gt", help="stage-one depth source")
     p.add_argument("--pose", default="gt", help="stage-one pose source")
     p.add_argument("--n-points", type=int, default=2048, help="points per cloud in training and evaluation")
     p.add_argument("--width-scale", type=float, default=0.25, help="net width multiplier (1 = paper)")
-    p.add_argument("--batch-size", type=int, default=4)
-    p.add_argument("--max-scenes", type=int, default=0)
-    p.add_argument("--device", default="auto")
+    p.add_argument("--batch-size", type=int, default=4, help="training pairs per optimiser step")
+    p.add_argument("--max-scenes", type=int, default=0, help="evaluate only the first N test scenes (0 = all)")
+    p.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
 
 
 def level_points_for(n_points: int) -> tuple[int, ...]:
-    """The paper's level sizes (2048/1024/256/64/16 for 8192 inputs), scaled to ``n_points``; for small
-    inputs the coarsest level keeps 4 points and each finer level at least twice the next coarser one,
-    so the levels stay strictly decreasing (256 → 64/32/16/8/4). Needs ``n_points >= 128``."""
-    levels = [int(n_points * f) for f in (0.25, 0.125, 1 / 32, 1 / 128, 1 / 512)]
-    levels[4] = max(4, levels[4])
-    for i in range(3, -1, -1):
-        levels[i] = max(levels[i], 2 * levels[i + 1])
-    return tuple(levels)
+    """:func:`training.config.level_points_for` (imported when called: this module loads without torch)."""
+    from training.config import level_points_for as levels
+
+    return levels(n_points)
 
 
 def training_sequences(cfg: AblationConfig) -> tuple[str, ...]:

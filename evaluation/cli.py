@@ -9,6 +9,9 @@ Examples::
     monoflow-evaluate run --split kitti_rm_ground --protocol released --scenes kitti_t --checkpoint ft.pt
     monoflow-evaluate score runs/demo/eval/predictions-*.h5     # recompute metrics from saved predictions
     monoflow-evaluate ablations --world cache/demo/world --out runs/ablations --steps 200
+    monoflow-evaluate curves runs/demo                  # runs/demo/curves.png from train.csv / val.csv
+
+Flags use the project's style (``--n_points``); the dashed spellings (``--n-points``) are accepted too.
 """
 
 from __future__ import annotations
@@ -53,21 +56,29 @@ def build_parser() -> argparse.ArgumentParser:
                         "scene names after --mapping")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
-    r.add_argument("--device", default="auto")
+    r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
     r.add_argument("--out", default="runs/eval", help="folder for results.md/json/csv")
     r.add_argument("--save-predictions", action="store_true",
                    help="also write predictions-<method>.h5 (scored points, predicted and true flow per scene)")
-    r.add_argument("--plots", action="store_true", help="bar chart and top-down error views (needs matplotlib)")
+    r.add_argument("--plots", action="store_true",
+                   help="bar chart and top-down error views, one colour scale per panel (needs matplotlib)")
+    r.add_argument("--plots-scene", default="",
+                   help="scene shown by --plots (a name of the split, or its 0-based index); default: the first")
     r.add_argument("--no-warmup", action="store_true",
                    help="time the first call too (default: one untimed warm-up call per method)")
-    r.add_argument("--no-progress", action="store_true")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
     s = sub.add_parser("score", help="recompute metrics from a predictions file")
-    s.add_argument("predictions", nargs="+")
+    s.add_argument("predictions", nargs="+", help="predictions-*.h5 files written by run --save-predictions")
+    c = sub.add_parser("curves", help="training curves (loss terms, validation metrics) of a run folder as PNG")
+    c.add_argument("run_dir", nargs="+", help="monoflow-train or monoflow-train-depth run folder(s) with train.csv")
+    c.add_argument("--out", default="", help="PNG path (one run folder only); default <run_dir>/curves.png")
     a = sub.add_parser("ablations", help="train and evaluate the paper's Table II / III variants")
     from evaluation.ablations import add_arguments
 
     add_arguments(a)
-    return p
+    from pipeline.options import add_underscore_aliases
+
+    return add_underscore_aliases(p)
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -166,8 +177,9 @@ def _run(args) -> int:
             raise ConfigError(f"{n.name} needs at least {n.config.level_points[0]} points per cloud, "
                               f"--n-points is {cfg.n_points}")
         if n.uses_colour and first.color1 is None:
-            print(f"note: {n.name} was trained with colour features; {args.split} has no colours, so it gets "
-                  "zeros", file=sys.stderr)
+            print(f"WARNING: {n.name} was trained with colour features but {args.split} has no colours: it gets "
+                  "zeros instead, which it never saw in training (train with --data.colour_features false for "
+                  "such splits)", file=sys.stderr)
         own = {"fps": "fps", "random": "released"}.get(n.config.sampling)
         if protocol in ("fps", "released") and own != protocol:
             print(f"note: {n.name} samples its level 0 by '{n.config.sampling}', so its flow at the points "
@@ -176,10 +188,12 @@ def _run(args) -> int:
     writers: dict = {}
     first_scene: dict = {}
 
+    shown_scene = _plot_scene(split.names, args.plots_scene) if args.plots else first.name
+
     def on_prediction(name, pred):
         if name in writers:
             writers[name].add(pred.name, pred.points, pred.pred_flow, pred.gt_flow, pred.moving)
-        if args.plots and pred.name == first.name:
+        if args.plots and pred.name == shown_scene:
             first_scene[name] = pred
 
     if args.save_predictions:
@@ -213,8 +227,31 @@ def _run(args) -> int:
     if args.plots:
         from evaluation.plots import write_plots
 
-        paths = write_plots(out, rows, scenes, methods, cfg, predictions=first_scene)
+        paths = write_plots(out, rows, scenes, methods, cfg, scene_index=split.names.index(shown_scene),
+                            predictions=first_scene)
         print("plots: " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def _plot_scene(names: list[str], wanted: str) -> str:
+    """The scene ``--plots-scene`` names (a scene name or a 0-based index); the first when empty."""
+    if not wanted:
+        return names[0]
+    if wanted in names:
+        return wanted
+    if wanted.isdigit() and int(wanted) < len(names):
+        return names[int(wanted)]
+    raise ConfigError(f"--plots-scene {wanted!r}: no such scene (the split has {len(names)}: "
+                      f"{', '.join(names[:5])}{', ...' if len(names) > 5 else ''})")
+
+
+def _curves(args) -> int:
+    from evaluation.pictures import training_curves
+
+    if args.out and len(args.run_dir) > 1:
+        raise ConfigError("--out names one PNG: give one run folder with it")
+    for run in args.run_dir:
+        print(training_curves(run, args.out or None))
     return 0
 
 
@@ -245,6 +282,8 @@ def _main(argv: list[str] | None) -> int:
         return _run(args)
     if args.command == "score":
         return _score(args)
+    if args.command == "curves":
+        return _curves(args)
     from evaluation.ablations import run_ablations
 
     return run_ablations(args)

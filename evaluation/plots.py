@@ -4,7 +4,9 @@
   method, with the std over seeds as error bars when there is one.
 * ``scene-<name>.png``: one panel per method, the scene seen from above in the camera frame of frame 1
   (x right on the horizontal axis, z forward on the vertical axis, metres): every input point of pc1 in
-  light grey and the scored points coloured by their EPE3D (one colour scale for all panels).
+  light grey, the scored points coloured by their EPE3D on the panel's own colour scale (its own colour bar:
+  a method far worse than the others does not wash the rest out), and arrows of the predicted (black) and
+  true (green) flow's x–z components on a subsample of the scored points.
 
 Needs matplotlib, the optional extra ``plots`` (``pip install monoflow[plots]``); without it
 :func:`write_plots` raises :class:`~pipeline.errors.ConfigError` saying so. Uses the Agg canvas directly,
@@ -19,10 +21,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from evaluation.pictures import INSTALL_HINT  # one install hint for every picture
 from evaluation.predictions import ScenePrediction
 from pipeline.errors import ConfigError
-
-INSTALL_HINT = "pip install monoflow[plots]"
 
 
 def _matplotlib():
@@ -63,28 +64,34 @@ def bar_chart(path: Path, rows: Sequence[Mapping[str, Any]], title: str = "") ->
 
 
 def top_down(path: Path, predictions: Sequence[ScenePrediction], background: np.ndarray | None = None) -> Path:
-    """One panel per prediction: x (right) vs z (forward) of the scored points coloured by EPE3D (m)."""
+    """One panel per prediction: x (right) vs z (forward) of the scored points coloured by EPE3D (m), each panel
+    on its own colour scale, with predicted (black) and true (green) flow arrows on a subsample."""
     Figure, Canvas = _matplotlib()
     if not predictions:
         raise ValueError("no predictions to plot")
     errors = [np.linalg.norm(p.pred_flow - p.gt_flow, axis=1) for p in predictions]
-    vmax = max(float(np.percentile(np.concatenate(errors), 98)), 1e-3)
     n = len(predictions)
-    fig = Figure(figsize=(3.2 * n + 1.0, 4.2), dpi=120)
+    fig = Figure(figsize=(4.2 * n + 0.5, 4.6), dpi=120)
     Canvas(fig)
     axes = [fig.add_subplot(1, n, i + 1) for i in range(n)]
-    sc = None
+    rng = np.random.default_rng(0)
     for ax, pred, err in zip(axes, predictions, errors):
+        vmax = max(float(np.percentile(err, 98)), 1e-3)
         if background is not None:
             ax.scatter(background[:, 0], background[:, 2], s=0.5, c="0.85", linewidths=0, rasterized=True)
         sc = ax.scatter(pred.points[:, 0], pred.points[:, 2], s=2.0, c=err, cmap="viridis", vmin=0.0, vmax=vmax,
                         linewidths=0, rasterized=True)
-        ax.set_title(f"{pred.method}\nEPE3D {err.mean():.3f} m", fontsize=8)
+        pick = rng.choice(len(pred.points), size=min(150, len(pred.points)), replace=False)
+        for vec, colour in ((pred.gt_flow, "tab:green"), (pred.pred_flow, "black")):
+            ax.quiver(pred.points[pick, 0], pred.points[pick, 2], vec[pick, 0], vec[pick, 2], angles="xy",
+                      scale_units="xy", scale=1.0, width=0.003, color=colour, alpha=0.7)
+        ax.set_title(f"{pred.method}\nEPE3D {err.mean():.3f} m (arrows: black predicted, green true)", fontsize=8)
         ax.set_xlabel("x (m, right)")
         ax.set_aspect("equal", adjustable="datalim")
+        fig.colorbar(sc, ax=ax, label="EPE3D (m)", shrink=0.8, pad=0.02)
     axes[0].set_ylabel("z (m, forward)")
-    fig.colorbar(sc, ax=axes, label="EPE3D (m)", shrink=0.8)
-    fig.suptitle(f"scene {predictions[0].name}, top-down (camera frame of frame 1)", fontsize=9)
+    fig.suptitle(f"scene {predictions[0].name}, top-down (camera frame of frame 1); each panel has its own "
+                 "colour scale", fontsize=9)
     fig.savefig(path)
     return path
 

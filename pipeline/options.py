@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
+import re
 import tomllib
 import typing
 from pathlib import Path
@@ -67,20 +69,119 @@ def _converter(tp: Any):
     return str
 
 
-def add_dataclass_args(parser: argparse.ArgumentParser, cls, prefix: str = "") -> None:
-    """Add one ``--flag`` per (nested) field of dataclass ``cls``; defaults stay unset (None)."""
+_ENTRY = re.compile(r"^(\s*)((?:[A-Za-z_][\w*]*)(?:\s*(?:,|/|and)\s*[A-Za-z_][\w*]*)*)\s*:\s+(\S.*)$")
+
+
+def field_docs(cls) -> dict[str, str]:
+    """Per-field help of dataclass ``cls`` taken from its docstring.
+
+    Recognised entries (the style of this project's configs, Google ``Attributes:`` sections included)::
+
+        name: text, continued on lines indented deeper
+        width, height: one text for several fields      (also ``a / b`` and ``use_*`` wildcards)
+
+    A field with ``metadata={"help": ...}`` keeps that text; every other field gets its docstring entry, or
+    nothing (a test checks that every command's every option ends up with a text).
+    """
+    names = [f.name for f in _fields(cls)]
+    docs: dict[str, str] = {}
+    lines = (inspect.getdoc(cls) or "").splitlines()
+    i = 0
+    while i < len(lines):
+        m = _ENTRY.match(lines[i])
+        if not m:
+            i += 1
+            continue
+        indent = len(m.group(1))
+        text = [m.group(3).strip()]
+        j = i + 1
+        while j < len(lines) and lines[j].strip() and len(lines[j]) - len(lines[j].lstrip()) > indent \
+                and not (_ENTRY.match(lines[j]) and len(_ENTRY.match(lines[j]).group(1)) == indent):
+            text.append(lines[j].strip())
+            j += 1
+        keys = [k.strip() for k in re.split(r"\s*(?:,|/|\band\b)\s*", m.group(2)) if k.strip()]
+        body = " ".join(text)
+        for key in keys:
+            for n in names:
+                if n == key or (key.endswith("*") and n.startswith(key[:-1])):
+                    docs.setdefault(n, body)
+        i = j
+    paragraphs = [" ".join(x.strip() for x in para.splitlines()) for para in re.split(r"\n\s*\n", "\n".join(lines))]
+    for n in names:  # a field only mentioned in another entry's text or a paragraph: that text
+        if n not in docs:
+            word = re.compile(rf"(?<![\w.]){re.escape(n)}(?!\w)")
+            hit = next((t for t in docs.values() if word.search(t)), None) or next(
+                (p for p in paragraphs if word.search(p)), None)
+            if hit:
+                docs[n] = hit
+    for f in _fields(cls):
+        if f.metadata.get("help"):
+            docs[f.name] = f.metadata["help"]
+    return docs
+
+
+def add_dataclass_args(parser: argparse.ArgumentParser, cls, prefix: str = "",
+                       aliases: dict[str, list[str]] | None = None) -> None:
+    """Add one ``--flag`` per (nested) field of dataclass ``cls``; defaults stay unset (None).
+
+    Help texts come from :func:`field_docs` (the field's ``help`` metadata or the class docstring).
+    ``--name-with-dashes`` is accepted as an alias of ``--name_with_underscores``; ``aliases`` adds others
+    ({"data.n_points": ["--n-points"]}).
+    """
     hints = _hints(cls)
+    docs = field_docs(cls)
     for f in _fields(cls):
         tp = hints[f.name]
         name = f"{prefix}{f.name}"
         if _is_dc(tp):
-            add_dataclass_args(parser, tp, prefix=f"{name}.")
+            add_dataclass_args(parser, tp, prefix=f"{name}.", aliases=aliases)
             continue
-        help_text = f.metadata.get("help", "")
+        help_text = docs.get(f.name, "")
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        parser.add_argument(f"--{name}", dest=name, type=_converter(tp), default=None,
-                            help=f"{help_text} (default: {default})".strip())
+        flags = [f"--{name}"]
+        dashed = f"--{name.replace('_', '-')}"
+        if dashed != flags[0]:
+            flags.append(dashed)
+        flags += [a for a in (aliases or {}).get(name, []) if a not in flags]
+        metavar = _metavar(tp)
+        parser.add_argument(*flags, dest=name, type=_converter(tp), default=None, metavar=metavar,
+                            help=f"{help_text} (default: {_show(default)})".strip().replace("%", "%%"))
+
+
+def add_underscore_aliases(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Accept ``--a_b`` for every ``--a-b`` option of ``parser`` and its sub-parsers (and the reverse), so every
+    command takes the project's one style (``--section.field_name``) and the older dashed spellings alike."""
+    for action in list(parser._actions):
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                add_underscore_aliases(sub)
+            continue
+        for opt in list(action.option_strings):
+            if not opt.startswith("--"):
+                continue
+            for alt in ("--" + opt[2:].replace("-", "_"), "--" + opt[2:].replace("_", "-")):
+                if alt != opt and alt not in parser._option_string_actions:
+                    action.option_strings.append(alt)
+                    parser._option_string_actions[alt] = action
+        # the project's style (underscores) is shown first
+        action.option_strings.sort(key=lambda o: (not o.startswith("--"), "-" in o[2:]))
+    return parser
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, tuple):
+        return ",".join(map(str, value)) if value else "empty"
+    return str(value)
+
+
+def _metavar(tp: Any) -> str | None:
+    """``{true,false}`` for booleans, ``A,B,...`` for tuples, else argparse's own (the flag's name)."""
+    if tp is bool:
+        return "{true,false}"
+    if tp in (tuple, list) or typing.get_origin(tp) in (tuple, list):
+        return "A,B,..."
+    return None
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

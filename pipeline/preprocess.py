@@ -30,7 +30,8 @@ import numpy as np
 
 from pipeline.errors import ConfigError, InputError, MonoflowError
 from pipeline.filters import FILTER_NAMES, FilterConfig
-from pipeline.scale import ScaleConfig, ScaleError, combine_factors, frame_factor
+from pipeline.scale import (ScaleConfig, ScaleError, combine_factors, frame_factor, implausible_depth,
+                            scale_consistency_problems)
 from pipeline.sources import DEPTH_SOURCES, POSE_SOURCES
 
 RUN_INFO_NAME = "preprocess_run.json"
@@ -48,6 +49,11 @@ class PreprocessConfig:
         default=(), metadata={"help": "comma-separated sequence ids; empty = every sequence"}
     )
     camera: str = field(default="image_2", metadata={"help": "camera folder (image_2 = left colour)"})
+    strict_pose_count: bool = field(
+        default=True,
+        metadata={"help": "a complete sequence's poses file must have exactly one line per image; false = "
+                          "only a line for every frame id (e.g. frames 0..50 beside the full 1,101-line 06.txt)"},
+    )
     depth: str = field(default="net", metadata={"help": f"depth source: {' | '.join(DEPTH_SOURCES)}"})
     pose: str = field(default="net", metadata={"help": f"pose source: {' | '.join(POSE_SOURCES)} (gt = dataset poses)"})
     depth_checkpoint: str | None = field(default=None, metadata={"help": "DispResNet checkpoint (.pth.tar)"})
@@ -134,7 +140,10 @@ class PreprocessConfig:
 
 
 # Options that change how, where or how fast the cache is written, or where inputs live, not what it holds.
-_NOT_CONTENT = ("root", "dataset", "device", "batch_size", "workers", "shard", "out", "progress", "disparity_dir")
+_NOT_CONTENT = ("root", "dataset", "device", "batch_size", "workers", "shard", "out", "progress", "disparity_dir",
+                "strict_pose_count")
+#: Scale options that decide whether a run stops or warns, not what a finished block holds.
+_SCALE_NOT_CONTENT = ("fallback", "refuse_non_metric")
 _NET_ONLY = ("resnet_layers", "random_init", "seed", "amp")
 _DISPARITY_ONLY = ("disparity_focal", "disparity_baseline")
 
@@ -156,6 +165,8 @@ def cache_config(config: PreprocessConfig, sequences: list[str]) -> dict[str, An
     d = dataclasses.asdict(config)
     for key in _NOT_CONTENT:
         d.pop(key)
+    for key in _SCALE_NOT_CONTENT:
+        d["scale"].pop(key, None)
     d["sequences"] = list(sequences)
     d["stage"] = "preprocess"
     for kind in ("depth", "pose"):
@@ -214,7 +225,7 @@ def open_sequences(config: PreprocessConfig):
     need_poses = config.pose == "gt"
     out = {}
     for name in sorted(dict.fromkeys(names)):
-        seq = OdometrySequence(config.root, name, config.camera)
+        seq = OdometrySequence(config.root, name, config.camera, strict_pose_count=config.strict_pose_count)
         gaps = [f for f in range(seq.frames[0], seq.frames[-1] + 1) if f not in set(seq.frames)]
         if gaps:
             suffix = seq.image_path(0).suffix
@@ -244,6 +255,18 @@ class BlockResult:
     pose_pairs: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     stats: list[dict[str, int]] = field(default_factory=list)
+    frames_without_scale: int = 0  # frames whose own scale factor failed (no road plane, no LiDAR overlap)
+    carried: bool = False  # no frame gave a factor: the block took the last good one (or the sequence median)
+    warnings: list[str] = field(default_factory=list)
+
+
+class DeferBlock(MonoflowError):
+    """A block without any scale factor met before any good factor of its sequence: finish it at the end with
+    the sequence median (carries the block's inferred data)."""
+
+    def __init__(self, inferred: "_Inferred") -> None:
+        super().__init__(f"sequence {inferred.plan.sequence} block {inferred.plan.index}: no scale factor yet")
+        self.inferred = inferred
 
 
 @dataclass
@@ -280,6 +303,7 @@ class BlockProcessor:
         self.pose_source = make_pose_source(config.pose, self.runner)
         st = config.scale.scale_translation
         self.scales_translation = config.pose == "net" if st is None else bool(st)
+        self.good_factors: dict[str, list[float]] = {}  # per sequence, blocks whose frames gave a factor, in order
 
     def build(self, plan: BlockPlan):
         """(BlockRecord, BlockResult) of one planned block; nothing is written."""
@@ -307,8 +331,13 @@ class BlockProcessor:
         n1 = self._counters()
         return _Inferred(plan, hw, K, positions, where, images, depths, Ts, n1[0] - n0[0], n1[1] - n0[1], clock.laps)
 
-    def finish(self, inf: "_Inferred"):
-        """Second half of a block: scale, filters (frame-only ones once per frame), ground truth, records."""
+    def finish(self, inf: "_Inferred", forced_factor: float | None = None):
+        """Second half of a block: scale, filters (frame-only ones once per frame), ground truth, records.
+
+        A block where no frame gives a factor takes, with ``scale.fallback = carry``, the sequence's last good
+        factor, or raises :class:`DeferBlock` when there is none yet (the caller finishes it later with
+        ``forced_factor`` = the sequence median); with ``abort`` it raises :class:`ScaleError`.
+        """
         from pipeline.cache.points import canonical_depth
         from pipeline.cache.records import BlockRecord, FrameRecord
         from pipeline.pairs import build_pair, frame_points
@@ -328,13 +357,32 @@ class BlockProcessor:
             except ScaleError as exc:
                 factors.append(float("nan"))
                 last_error = exc
+        failed = int(sum(1 for f in factors if not np.isfinite(f)))
+        carried = False
         try:
             s = combine_factors(factors)
+            self.good_factors.setdefault(plan.sequence, []).append(s)
         except ScaleError:
             ids = [seq.frames[p] for p in positions]
-            raise ScaleError(f"sequence {plan.sequence} block {plan.index} (frames {ids[0]}..{ids[-1]}): "
-                             f"no frame gave a scale factor ({last_error})") from None
+            good = self.good_factors.get(plan.sequence)
+            if forced_factor is not None:
+                s, carried = float(forced_factor), True
+            elif cfg.scale.fallback == "carry" and good:
+                s, carried = good[-1], True
+            elif cfg.scale.fallback == "carry":
+                raise DeferBlock(inf) from None
+            else:
+                raise ScaleError(f"sequence {plan.sequence} block {plan.index} (frames {ids[0]}..{ids[-1]}): "
+                                 f"no frame gave a scale factor ({last_error}); --scale.fallback carry takes "
+                                 "the last good factor instead") from None
         depths = canonical_depth(inf.depths * np.float32(s))
+        warnings = []
+        odd = implausible_depth(depths)
+        if odd is not None:
+            ids = [seq.frames[p] for p in positions]
+            warnings.append(f"sequence {plan.sequence} frames {ids[0]}..{ids[-1]}: {odd}")
+            if cfg.scale.refuse_non_metric:
+                raise ScaleError(f"{warnings[-1]} (--scale.refuse_non_metric true)")
         Ts = inf.Ts.copy()
         if self.scales_translation:
             Ts[:, :3, 3] *= s
@@ -357,6 +405,7 @@ class BlockProcessor:
             sequence=plan.sequence, index=plan.index, pairs=len(records), frames=len(positions), written=False,
             scale=s, depth_images=inf.depth_images, pose_pairs=inf.pose_pairs,
             seconds={**inf.seconds, **clock.laps}, stats=[dict(r.stats) for r in records],
+            frames_without_scale=failed, carried=carried, warnings=warnings,
         )
         return block, result
 
@@ -376,17 +425,48 @@ class _Clock:
         self.t = now
 
 
-def _finish_and_write(processor: BlockProcessor, writer, inferred: _Inferred) -> BlockResult:
-    block, result = processor.finish(inferred)
+def _finish_and_write(processor: BlockProcessor, writer, inferred: _Inferred,
+                      forced_factor: float | None = None) -> BlockResult | DeferBlock:
+    try:
+        block, result = processor.finish(inferred, forced_factor)
+    except DeferBlock as deferred:
+        return deferred
     t = time.perf_counter()
     result.written = writer.write_block(block)
     result.seconds["write"] = time.perf_counter() - t
     return result
 
 
-def process_block(processor: BlockProcessor, writer, plan: BlockPlan) -> BlockResult:
-    """Build one block and write it (atomically: a block is on disk complete or not at all)."""
+def process_block(processor: BlockProcessor, writer, plan: BlockPlan) -> BlockResult | DeferBlock:
+    """Build one block and write it (atomically: a block is on disk complete or not at all); a
+    :class:`DeferBlock` is returned for a block that has to wait for its sequence's median factor."""
     return _finish_and_write(processor, writer, processor.infer(plan))
+
+
+def sequence_median_factor(processor: BlockProcessor, sequence: str, root: Path | None = None) -> float:
+    """Median of the good block factors of ``sequence`` seen by ``processor`` (else of the blocks already in the
+    cache at ``root``); :class:`ScaleError` when the whole sequence gave none."""
+    good = list(processor.good_factors.get(sequence, []))
+    if not good and root is not None:
+        from pipeline.cache.block_format import open_block_group
+
+        for d in sorted((Path(root) / "blocks" / sequence).glob("[0-9][0-9][0-9][0-9][0-9]")):
+            if (d / "zarr.json").is_file():
+                good.extend(float(x) for x in np.asarray(open_block_group(d)["scale"][...]).ravel())
+    if not good:
+        raise ScaleError(f"sequence {sequence}: no frame of any block gave a scale factor (no road plane found "
+                         f"with --scale.mode {processor.config.scale.mode}); try --scale.mode fixed --scale.factor F")
+    return float(np.median(good))
+
+
+def finish_deferred(processor: BlockProcessor, writer, deferred: list[DeferBlock],
+                    done: Callable[[BlockResult], None], root: Path | None = None) -> None:
+    """Finish blocks that had no factor before any good one of their sequence, with the sequence median."""
+    for item in deferred:
+        s = sequence_median_factor(processor, item.inferred.plan.sequence, root)
+        res = _finish_and_write(processor, writer, item.inferred, forced_factor=s)
+        assert not isinstance(res, DeferBlock)
+        done(res)
 
 
 def process_blocks(processor: BlockProcessor, writer, plans: list[BlockPlan],
@@ -396,17 +476,25 @@ def process_blocks(processor: BlockProcessor, writer, plans: list[BlockPlan],
     temp directory removed) before the error is raised — the earliest block's error first."""
     from concurrent.futures import ThreadPoolExecutor
 
+    deferred: list[DeferBlock] = []
+
+    def take(res) -> None:
+        if isinstance(res, DeferBlock):
+            deferred.append(res)
+        else:
+            done(res)
+
     with ThreadPoolExecutor(1, thread_name_prefix="stage1-finish") as pool:
         pending = None
         try:
             for plan in plans:
                 inferred = processor.infer(plan)
                 if pending is not None:
-                    done(pending.result())
+                    take(pending.result())
                     pending = None
                 pending = pool.submit(_finish_and_write, processor, writer, inferred)
             if pending is not None:
-                done(pending.result())
+                take(pending.result())
                 pending = None
         except BaseException:
             if pending is not None:
@@ -414,6 +502,7 @@ def process_blocks(processor: BlockProcessor, writer, plans: list[BlockPlan],
                 if earlier is not None:
                     raise earlier from None
             raise
+    finish_deferred(processor, writer, deferred, done, getattr(writer, "root", None))
 
 
 # --------------------------------------------------------------------------- worker processes
@@ -459,7 +548,10 @@ def _worker_block(plan: BlockPlan):
     if "error" in _WORKER:
         return ("error", _WORKER["error"])
     try:
-        return ("ok", process_block(_WORKER["processor"], _WORKER["writer"], plan))
+        res = process_block(_WORKER["processor"], _WORKER["writer"], plan)
+        if isinstance(res, DeferBlock):
+            return ("deferred", plan)
+        return ("ok", res)
     except MonoflowError as exc:
         return ("error", _pack_error(exc))
 
@@ -491,6 +583,9 @@ class PreprocessSummary:
     mean_scale: float
     stage_seconds: dict[str, float]
     manifest_written: bool
+    frames_without_scale: int = 0
+    blocks_carried: int = 0
+    warnings: list[str] = field(default_factory=list)
 
     def text(self) -> str:
         pts = ", ".join(f"{k} {v:.0f}" for k, v in self.mean_points.items())
@@ -502,6 +597,12 @@ class PreprocessSummary:
             f"  sources: depth {self.depth_source}, pose {self.pose_source}, scale {self.scale_mode}"
             + (f" (mean factor {self.mean_scale:.4g})" if self.blocks_written else ""),
             f"  mean points per cloud after each filter: {pts}",
+        ]
+        if self.frames_without_scale or self.blocks_carried:
+            lines.append(f"  scale: {self.frames_without_scale} frames gave no factor of their own (no road plane / "
+                         f"no LiDAR overlap); {self.blocks_carried} blocks had none at all and carried the last "
+                         "good factor (or the sequence median)")
+        lines += [
             f"  bytes per pair: {self.bytes_per_pair / 1024:.0f} KiB",
         ]
         if self.depth_net_images or self.pose_net_pairs:
@@ -509,6 +610,8 @@ class PreprocessSummary:
                 f"  net calls: depth {self.depth_net_images} images for {self.frames_processed} block frames, "
                 f"pose {self.pose_net_pairs} for {self.pairs_written} pairs"
             )
+        for w in self.warnings:
+            lines.append(f"  WARNING: {w}")
         lines.append(f"  cache: {self.cache_root}" + ("" if self.manifest_written else
                                                      " (manifest not written yet: other shards pending; run `merge`)"))
         return "\n".join(lines)
@@ -545,6 +648,11 @@ def run_preprocess(
 
     start = time.perf_counter()
     config.validate()
+    run_warnings = scale_consistency_problems(config.depth, config.pose, config.scale)
+    if run_warnings and config.scale.refuse_non_metric:
+        raise ConfigError(run_warnings[0] + " (--scale.refuse_non_metric true)")
+    for w in run_warnings:
+        _shout(w)
     sequences = open_sequences(config)
     plans = plan_blocks({name: seq.frames for name, seq in sequences.items()}, config.block_size)
     if not plans:
@@ -570,9 +678,14 @@ def run_preprocess(
 
     results: list[BlockResult] = []
     bar = _progress(config, len(mine), len(mine) - len(todo))
+    shouted: set[str] = set()
 
     def done(res: BlockResult) -> None:
         results.append(res)
+        for w in res.warnings:
+            if not shouted:  # once per run: every block of a non-metric run says the same
+                _shout(w)
+            shouted.add(w)
         if bar is not None:
             bar.update(1)
             bar.set_postfix_str(f"{res.sequence}/{res.index:05d} {res.pairs} pairs")
@@ -627,7 +740,16 @@ def run_preprocess(
         mean_scale=float(np.mean([r.scale for r in results])) if results else float("nan"),
         stage_seconds=stage_seconds,
         manifest_written=manifest_written,
+        frames_without_scale=sum(r.frames_without_scale for r in results),
+        blocks_carried=sum(r.carried for r in results),
+        warnings=run_warnings + sorted(shouted)[:3],
     )
+
+
+def _shout(message: str) -> None:
+    """A loud warning on stderr (stage one goes on; ``--scale.refuse_non_metric true`` stops instead)."""
+    bar = "!" * 78
+    print(f"{bar}\nWARNING: {message}\n{bar}", file=sys.stderr)
 
 
 def mean_points(stats: list[dict[str, int]], filters: FilterConfig) -> dict[str, float]:
@@ -655,6 +777,14 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     threads = max(1, (os.cpu_count() or 1) // config.workers)
+    deferred_plans: list[BlockPlan] = []
+    results: list[BlockResult] = []
+    done_outer = done
+
+    def done(res: BlockResult) -> None:  # noqa: F811  (keeps the good factors for deferred blocks)
+        results.append(res)
+        done_outer(res)
+
     args = (dataclasses.asdict(config), str(root), cache_cfg, source, threads)
     error: MonoflowError | None = None
     with ProcessPoolExecutor(config.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
@@ -669,6 +799,8 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
                     status, payload = fut.result()
                     if status == "ok":
                         done(payload)
+                    elif status == "deferred":
+                        deferred_plans.append(payload)
                     elif error is None:
                         error = _unpack_error(payload)
                         for other in pending:
@@ -679,6 +811,16 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
             raise
     if error is not None:
         raise error
+    if deferred_plans:  # blocks that met no good factor in their worker: the sequence median, here
+        from pipeline.cache.writer import CacheWriter
+
+        processor = BlockProcessor(config)
+        for res in sorted(results, key=lambda r: r.index):
+            if not res.carried:
+                processor.good_factors.setdefault(res.sequence, []).append(res.scale)
+        writer = CacheWriter(root, cache_cfg, source)
+        items = [DeferBlock(processor.infer(plan)) for plan in sorted(deferred_plans, key=lambda p: p.global_index)]
+        finish_deferred(processor, writer, items, done_outer, Path(root))
 
 
 __all__ = [

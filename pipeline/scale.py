@@ -25,6 +25,11 @@ from pipeline.errors import ConfigError, MonoflowError
 from pipeline.geometry import backproject, pixel_grid
 
 SCALE_MODES = ("none", "fixed", "lidar", "camera-height")
+SCALE_FALLBACKS = ("carry", "abort")
+#: Depth sources whose maps are metric already (no scale factor needed).
+METRIC_DEPTH_SOURCES = ("gt", "lidar", "disparity")
+#: A block whose median valid depth (after scaling) lies outside this range (metres) does not look metric.
+PLAUSIBLE_MEDIAN_DEPTH_M = (1.0, 150.0)
 
 
 @dataclass
@@ -49,6 +54,17 @@ class ScaleConfig:
         default=None,
         metadata={"help": "multiply pose translations by the factor too; none = only when the pose comes from the net"},
     )
+    fallback: str = field(
+        default="carry",
+        metadata={"help": "a block where no frame gives a factor (no road plane found): 'carry' = take the last "
+                          "good factor of the sequence (the sequence median when there is none yet) and count it; "
+                          "'abort' = stop with an error"},
+    )
+    refuse_non_metric: bool = field(
+        default=False,
+        metadata={"help": "stop (instead of warning loudly) when the clouds cannot be metric or the depth and "
+                          "pose scales disagree (e.g. --depth net with --scale.mode none)"},
+    )
 
     def __post_init__(self) -> None:
         if self.mode not in SCALE_MODES:
@@ -57,6 +73,8 @@ class ScaleConfig:
             raise ConfigError(f"scale factor must be a positive number, got {self.factor}")
         if self.camera_height <= 0:
             raise ConfigError(f"camera_height must be positive, got {self.camera_height}")
+        if self.fallback not in SCALE_FALLBACKS:
+            raise ConfigError(f"scale fallback must be one of {', '.join(SCALE_FALLBACKS)}, got {self.fallback!r}")
 
 
 class ScaleError(MonoflowError):
@@ -181,7 +199,48 @@ def combine_factors(factors: list[float]) -> float:
     return float(np.median(f))
 
 
+def scale_consistency_problems(depth: str, pose: str, config: ScaleConfig) -> list[str]:
+    """Why clouds made with these sources and this scale config would not be metric, or would mix scales.
+
+    ``depth`` / ``pose``: stage one's source names (``net``, ``gt``, ...). Empty list = consistent.
+    """
+    problems = []
+    metric_depth = depth in METRIC_DEPTH_SOURCES
+    scales_t = pose == "net" if config.scale_translation is None else bool(config.scale_translation)
+    if depth == "net" and config.mode == "none":
+        problems.append("depth comes from the net and --scale.mode is 'none': the clouds are in the net's unknown "
+                        "scale, not metres, so the metric filters (ground 1.15 m, far 35 m, LiDAR range) and the "
+                        "flow net's units are meaningless; use --scale.mode camera-height (no LiDAR needed), "
+                        "lidar or fixed")
+    if metric_depth and pose == "net" and config.mode in ("none", "fixed"):
+        problems.append(f"depth '{depth}' is metric but the pose net's translations are in its own unknown scale "
+                        "(nothing aligns them): the static flow mixes two scales; use --pose gt, or depth and pose "
+                        "from the same nets with a scale mode")
+    if pose == "gt" and scales_t and config.mode != "none":
+        problems.append("the dataset's poses are metric but --scale.scale_translation true multiplies their "
+                        "translations by the depth factor: depth and pose scales disagree")
+    return problems
+
+
+def implausible_depth(depths: np.ndarray) -> str | None:
+    """A sentence when the median valid depth of ``depths`` (metres, 0 = invalid) is outside
+    :data:`PLAUSIBLE_MEDIAN_DEPTH_M` (a street scene's median lies between them), else None."""
+    d = depths[np.isfinite(depths) & (depths > 0)]
+    if d.size == 0:
+        return "no valid depth at all"
+    med = float(np.median(d))
+    lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
+    if lo <= med <= hi:
+        return None
+    return f"median depth {med:.3g} m is outside {lo:g}..{hi:g} m: the clouds do not look metric"
+
+
 __all__ = [
+    "METRIC_DEPTH_SOURCES",
+    "PLAUSIBLE_MEDIAN_DEPTH_M",
+    "SCALE_FALLBACKS",
+    "implausible_depth",
+    "scale_consistency_problems",
     "PlaneFit",
     "SCALE_MODES",
     "ScaleConfig",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from evaluation.ablations import level_points_for
+from training.config import level_points_for
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,7 @@ def test_head_is_differentiable_in_the_flow():
 
 
 def test_net_with_ego_head_trains_and_can_be_switched_off():
-    from evaluation.ablations import level_points_for
+    from training.config import level_points_for
     from training.model.halflownet import HALFlowConfig, HALFlowNet
 
     torch.manual_seed(0)

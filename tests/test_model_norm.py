@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from evaluation.ablations import level_points_for
+from training.config import level_points_for
 from pipeline.errors import ConfigError
 from training.model.halflownet import HALFlowConfig, HALFlowNet
 

@@ -25,6 +25,11 @@ _PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 def _describe(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="TOML file with options (flags override it)")
     p.add_argument("--resume", action="store_true", help="continue from <run_dir>/latest.pt when present")
+    p.add_argument("--overwrite", action="store_true",
+                   help="train into a run folder that already holds a run, replacing it (default: refuse)")
+    p.add_argument("--n_points", "--n-points", dest="n_points", type=int, default=None, metavar="INT",
+                   help="points per cloud in one flag: sets data.n_points, model.n_points and model.level_points "
+                        "(the paper's 8192 -> 2048/1024/256/64/16, scaled) unless those are given too")
 
 
 def _new_parser() -> argparse.ArgumentParser:
@@ -80,7 +85,8 @@ def _lookalike(name: str, module: str):
         else:
             default = ast.literal_eval(value)
             fields.append((node.target.id, type(default), dataclasses.field(default=default)))
-    return dataclasses.make_dataclass(name, fields)
+    # the docstring travels along: the help texts come from it (pipeline.options.field_docs)
+    return dataclasses.make_dataclass(name, fields, namespace={"__doc__": ast.get_docstring(classes[name])})
 
 
 def build_help_parser() -> argparse.ArgumentParser:
@@ -108,7 +114,9 @@ def _main(argv: list[str] | None) -> int:
     from training.config import TrainConfig
     from training.trainer import Trainer
 
+    apply_n_points(args)
     cfg = build_config(TrainConfig, args, args.config)
+    check_run_dir(cfg.run_dir, resume=args.resume, overwrite=args.overwrite)
     trainer = Trainer(cfg, resume=args.resume)
     try:
         last = trainer.fit()
@@ -118,6 +126,33 @@ def _main(argv: list[str] | None) -> int:
         shown = {k: round(float(last[k]), 5) for k in ("loss", "val_epe3d", "val_loss") if k in last}
         print(f"done: {trainer.step} steps in {trainer.run_dir} — {shown}")
     return 0
+
+
+def apply_n_points(args: argparse.Namespace) -> None:
+    """``--n_points N``: data.n_points, model.n_points and model.level_points from one flag (explicit ones win)."""
+    n = getattr(args, "n_points", None)
+    if n is None:
+        return
+    from training.config import level_points_for
+
+    for key, value in (("data.n_points", n), ("model.n_points", n), ("model.level_points", level_points_for(n))):
+        if getattr(args, key, None) is None:
+            setattr(args, key, value)
+
+
+#: Files whose presence means a run folder already holds a run.
+RUN_MARKERS = ("latest.pt", "train.csv", "train.jsonl", "best.pt")
+
+
+def check_run_dir(run_dir: str | Path, resume: bool, overwrite: bool, markers: tuple[str, ...] = RUN_MARKERS) -> None:
+    """ConfigError when ``run_dir`` already holds a run and neither ``--resume`` nor ``--overwrite`` was given."""
+    from pipeline.errors import ConfigError
+
+    run = Path(run_dir)
+    found = [m for m in markers if (run / m).exists()]
+    if found and not (resume or overwrite):
+        raise ConfigError(f"{run}: already holds a run ({', '.join(found)}); pass --resume to continue it or "
+                          "--overwrite to replace it")
 
 
 def main(argv: list[str] | None = None) -> int:

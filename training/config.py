@@ -17,7 +17,9 @@ class DataConfig:
     val_fraction: the last fraction of each sequence's pairs held out for validation (label-free scores,
         and EPE3D where the cache holds ground-truth flow); 0 disables validation.
     val_pairs_max: at most this many held-out pairs are scored at each validation.
-    colour_features: use RGB in [0, 1] as the per-point features (else zeros).
+    colour_features: use RGB in [0, 1] as the per-point features (else zeros). Off by default: the KITTI
+        scene-flow test splits (FlowNet3D, HPLFlowNet) carry no colours, so a net trained with them meets zeros
+        there (monoflow-evaluate warns).
     jitter_deg / jitter_m: the second pass's static flow is moved by a random rigid motion of at most
         these angles (degrees, per axis) and translations (metres, per axis) — the released code's
         augmentation; 0 disables it.
@@ -38,7 +40,7 @@ class DataConfig:
     n_points: int = 8192
     val_fraction: float = 0.1
     val_pairs_max: int = 64
-    colour_features: bool = True
+    colour_features: bool = False
     jitter_deg: float = 0.0
     jitter_m: float = 0.0
     workers: int = 2
@@ -54,9 +56,28 @@ class DataConfig:
                 "ground_jitter_m": self.ground_jitter_m}
 
 
+def level_points_for(n_points: int) -> tuple[int, ...]:
+    """The paper's level sizes (2048/1024/256/64/16 for 8192 inputs), scaled to ``n_points``; for small
+    inputs the coarsest level keeps 4 points and each finer level at least twice the next coarser one,
+    so the levels stay strictly decreasing (256 → 64/32/16/8/4). Needs ``n_points >= 128``."""
+    levels = [int(n_points * f) for f in (0.25, 0.125, 1 / 32, 1 / 128, 1 / 512)]
+    levels[4] = max(4, levels[4])
+    for i in range(3, -1, -1):
+        levels[i] = max(levels[i], 2 * levels[i + 1])
+    return tuple(levels)
+
+
 @dataclass
 class OptimConfig:
-    """Adam with the paper's step decay: lr · decay^(samples // decay_every), floored at lr_min."""
+    """Adam with the paper's step decay: lr · decay^(samples // decay_every), floored at lr_min.
+
+    lr: initial learning rate.
+    decay: factor applied every ``decay_every_samples`` training samples.
+    decay_every_samples: training pairs seen between two decays.
+    lr_min: the learning rate never goes below this.
+    batch_size: pairs per optimiser step (global, over all processes).
+    grad_clip: clip the gradient norm to this (0 = no clipping).
+    """
 
     lr: float = 1e-3
     decay: float = 0.7
@@ -81,6 +102,14 @@ class TrainConfig:
     select_by: the held-out score ``best.pt`` minimises: ``val_l0`` (the finest level's loss, needs no
         labels), ``val_loss`` (the whole multi-level loss) or ``val_epe3d`` (needs ground-truth flow;
         synthetic data only). See :mod:`training.selection`.
+    cache: stage-one cache folder (<out>/<dataset>/<config-hash>, written by monoflow-preprocess).
+    run_dir: run folder (config.json, train.csv / val.csv, latest.pt, best.pt); an existing one is refused
+        unless --resume or --overwrite.
+    steps: optimiser steps of the run (global batches of optim.batch_size pairs).
+    seed: seed of every RNG (Python, numpy, torch) and of the point sampling.
+    device: auto | cpu | cuda[:i] (auto = the GPU when there is one).
+    amp: mixed-precision training (CUDA).
+    progress: tqdm progress bar.
     """
 
     cache: str = "cache/synthetic"

@@ -124,7 +124,8 @@ class OdometrySequence:
         complete = self.frames[0] == 0 and last == n - 1
         span = f"frames {self.frames[0]}..{last}" if complete else f"frame ids {self.frames[0]}..{last}"
         if strict and complete and count != n:
-            raise InputError(path, f"{count} {what} but {n} images in {self.image_dir} ({span}): counts differ")
+            raise InputError(path, f"{count} {what} but {n} images in {self.image_dir} ({span}): counts differ "
+                             "(--strict_pose_count false accepts a longer file, one line per frame id)")
         if count <= last:
             raise InputError(
                 path, f"{count} {what} but {n} images in {self.image_dir} ({span}): no line for frame id {last}"

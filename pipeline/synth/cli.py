@@ -18,7 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
         "3D flow, LiDAR scans and a scene-flow test split.",
     )
     p.add_argument("--out", required=True, help="output folder (written atomically)")
-    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--seed", type=int, default=d.seed, help="world seed: same seed, same world (default %(default)s)")
     p.add_argument("--width", type=int, default=d.width, help="image width in pixels (default %(default)s)")
     p.add_argument("--height", type=int, default=d.height, help="image height in pixels (default %(default)s)")
     p.add_argument("--focal-scale", type=float, default=d.focal_scale, help="multiplies KITTI-scaled fx, fy")
@@ -37,7 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes rendering frames; the output does not depend on it (default %(default)s)")
     p.add_argument("--force", action="store_true", help="replace an existing different world at --out")
-    return p
+    from pipeline.options import add_underscore_aliases
+
+    return add_underscore_aliases(p)
 
 
 def _body(argv: list[str] | None) -> int:

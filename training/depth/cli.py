@@ -33,6 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="TOML file with options (flags override it)")
     p.add_argument("--preset", choices=PRESETS, help="start from a preset: demo (make demo DEPTH=learned) or tiny")
     p.add_argument("--resume", action="store_true", help="continue from <run_dir>/latest.pt when present")
+    p.add_argument("--overwrite", action="store_true",
+                   help="train into a run folder that already holds a run, replacing it (default: refuse)")
     p.add_argument("--eval_only", action="store_true",
                    help="score checkpoints on data.val_sequences (all sequences when empty) instead of training")
     p.add_argument("--disp_checkpoint", help="--eval_only: depth checkpoint (default: the run folder's best, else last)")
@@ -73,7 +75,8 @@ def _evaluate(args, cfg) -> int:
     from training.runtime.device import resolve_device
 
     disp, pose = _checkpoint_paths(args, cfg)
-    seqs = expand_ids(cfg.data.root, cfg.data.val_sequences) or find_sequences(cfg.data.root)
+    wanted = tuple(s for s in cfg.data.val_sequences if str(s) != "none")
+    seqs = expand_ids(cfg.data.root, wanted) or find_sequences(cfg.data.root)
     hw = check_size(cfg.data.width, cfg.data.height)
     metrics = evaluate_checkpoints(disp, pose, cfg.data.root, seqs, cfg.data.camera, hw, cfg.eval,
                                    resolve_device(cfg.device))
@@ -94,6 +97,10 @@ def _main(argv: list[str] | None) -> int:
         return _evaluate(args, cfg)
     from training.depth.trainer import DepthTrainer
 
+    from training.cli import check_run_dir
+
+    check_run_dir(cfg.run_dir, resume=args.resume, overwrite=args.overwrite,
+                  markers=("latest.pt", "train.csv", "dispnet_checkpoint.pth.tar"))
     trainer = DepthTrainer(cfg, resume=args.resume)
     try:
         last = trainer.fit()

@@ -20,8 +20,13 @@ class DepthDataConfig:
     root: a KITTI-odometry-layout folder (``root/sequences/NN/<camera>``, ``calib.txt``, ``poses/NN.txt``).
     sequences: training sequence ids; empty = every sequence under ``root`` not in ``val_sequences``.
     val_sequences: held-out sequences for validation (depth against ``depth_2`` ground truth or projected
-        LiDAR, pose against the poses file, and the photometric loss); empty = no validation; ``last`` =
-        the last sequence under ``root`` (the synthetic world's test sequence).
+        LiDAR, pose against the poses file, and the photometric loss); ``last`` = the last sequence under
+        ``root`` (the synthetic world's test sequence); ``none`` = no validation; empty = the training
+        sequence itself when there is only one (e.g. one KITTI sequence: training never sees its poses or
+        depth, so pose/depth metrics against them still measure the nets; the photometric loss is then
+        in-sample), else no validation.
+    strict_pose_count: a complete sequence's poses file must have one line per image; false = a line for
+        every frame id is enough (e.g. 51 frames beside the full 1,101-line KITTI 06.txt).
     camera: image folder (``image_2`` colour; ``image_0`` for KITTI's grey left camera).
     width, height: working size in pixels (multiples of 32); K is scaled with the images.
     frame_gap: frames between the snippet's neighbours (t−gap, t, t+gap).
@@ -34,6 +39,7 @@ class DepthDataConfig:
     root: str = "cache/synth"
     sequences: tuple[str, ...] = ()
     val_sequences: tuple[str, ...] = ()
+    strict_pose_count: bool = True
     camera: str = "image_2"
     width: int = 416
     height: int = 128
@@ -49,7 +55,9 @@ class DepthDataConfig:
 class DepthLossConfig:
     """Weights and switches of SC-SfMLearner's loss (images in [0, 1] for the photometric terms).
 
-    photo_weight · photometric + smooth_weight · smoothness + geometry_weight · geometry consistency.
+    photo_weight, smooth_weight, geometry_weight: the loss is photo_weight · photometric + smooth_weight ·
+        smoothness + geometry_weight · geometry consistency.
+    with_ssim: include the SSIM term in the photometric error (else plain L1).
     ssim_weight: photometric per pixel = (1 − ssim_weight)·|ΔI| + ssim_weight·(1 − SSIM)/2.
     with_mask: weight the photometric error by the self-discovered mask 1 − D_diff.
     with_auto_mask: keep only pixels whose warped error is below the un-warped (static) error.
@@ -90,6 +98,7 @@ class DepthLossConfig:
 class DepthModelConfig:
     """ResNet depth of both nets and an optional local ImageNet initialisation (nothing is downloaded).
 
+    depth_layers, pose_layers: ResNet depth (18 or 50) of the depth (DispResNet) and pose (PoseResNet) encoders.
     imagenet_weights: path of a torchvision ``resnet18-*.pth`` / ``resnet50-*.pth`` state dict, or empty for
         random (Kaiming) initialisation.
     """
@@ -101,7 +110,13 @@ class DepthModelConfig:
 
 @dataclass
 class DepthOptimConfig:
-    """Adam (the released code: lr 1e-4, β = (0.9, 0.999), no weight decay, batch 4)."""
+    """Adam (the released code: lr 1e-4, β = (0.9, 0.999), no weight decay, batch 4).
+
+    lr: learning rate.
+    beta1, beta2: Adam's moment decay rates.
+    weight_decay: L2 weight decay (0 = none).
+    batch_size: snippets per optimiser step (global, over all processes).
+    """
 
     lr: float = 1e-4
     beta1: float = 0.9
@@ -131,7 +146,20 @@ class DepthEvalConfig:
 
 @dataclass
 class DepthTrainConfig:
-    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` snippets)."""
+    """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` snippets).
+
+    run_dir: run folder (config.json, train.csv / val.csv, official-format checkpoints; ``latest.pt`` to resume).
+    steps: optimiser steps of the run.
+    seed: seed of every RNG (Python, numpy, torch).
+    device: auto | cpu | cuda[:i] (auto = the GPU when there is one).
+    deterministic: ask torch for deterministic kernels (warn only).
+    log_every, val_every, ckpt_every: in steps; the last step always validates and checkpoints.
+    progress: tqdm progress bar.
+    select_by: which validation number picks the ``*_model_best`` files (lower is better): ``auto`` = depth
+        AbsRel when depth ground truth exists, else pose ATE-5 (m) when the poses file exists, else the
+        photometric loss; or ``abs_rel`` | ``ate`` | ``rot_err_deg`` | ``loss``. The best files hold the nets
+        only (official format, no optimiser state).
+    """
 
     run_dir: str = "runs/depth"
     steps: int = 1000
@@ -142,6 +170,7 @@ class DepthTrainConfig:
     val_every: int = 250
     ckpt_every: int = 250
     progress: bool = True
+    select_by: Literal["auto", "abs_rel", "ate", "rot_err_deg", "loss"] = "auto"
     data: DepthDataConfig = field(default_factory=DepthDataConfig)
     loss: DepthLossConfig = field(default_factory=DepthLossConfig)
     model: DepthModelConfig = field(default_factory=DepthModelConfig)

@@ -54,16 +54,19 @@ def resolve_splits(cfg: DepthDataConfig) -> tuple[list[str], list[str]]:
 
     A validation id ``last`` stands for the last sequence found (the synthetic world's test sequence).
     """
-    val = expand_ids(cfg.root, cfg.val_sequences)
+    no_val = [str(s) for s in cfg.val_sequences] == ["none"]
+    val = [] if no_val else expand_ids(cfg.root, cfg.val_sequences)
     train = expand_ids(cfg.root, cfg.sequences) if cfg.sequences else [
         s for s in find_sequences(cfg.root) if s not in val]
     if not train:
         raise ConfigError(f"{cfg.root}: no training sequence left (all are validation sequences)")
+    if not val and not no_val and len(train) == 1:
+        val = list(train)  # one sequence: validate on it (see DepthDataConfig.val_sequences)
     return train, val
 
 
-def open_sequences(root: str, ids: list[str], camera: str) -> list[OdometrySequence]:
-    return [OdometrySequence(root, s, camera=camera) for s in ids]
+def open_sequences(root: str, ids: list[str], camera: str, strict_pose_count: bool = True) -> list[OdometrySequence]:
+    return [OdometrySequence(root, s, camera=camera, strict_pose_count=strict_pose_count) for s in ids]
 
 
 def snippet_centres(seq: OdometrySequence, gap: int) -> list[int]:

@@ -122,8 +122,9 @@ class DepthTrainer:
         self.run_dir = Path(cfg.run_dir)
 
         train_ids, val_ids = resolve_splits(cfg.data)
-        self.train_seqs = open_sequences(cfg.data.root, train_ids, cfg.data.camera)
-        self.val_seqs = open_sequences(cfg.data.root, val_ids, cfg.data.camera)
+        strict = cfg.data.strict_pose_count
+        self.train_seqs = open_sequences(cfg.data.root, train_ids, cfg.data.camera, strict)
+        self.val_seqs = open_sequences(cfg.data.root, val_ids, cfg.data.camera, strict)
         self.train_set = SnippetDataset(self.train_seqs, cfg.data, cfg.seed, augment=True)
         if len(self.train_set) < cfg.optim.batch_size:
             raise InputError(cfg.data.root, f"only {len(self.train_set)} training snippets for a batch of "
@@ -257,8 +258,19 @@ class DepthTrainer:
         return out
 
     def score(self, row: dict[str, float]) -> float | None:
-        """Lower is better: depth AbsRel when ground truth exists, else the validation loss."""
-        return row.get("val_abs_rel", row.get("val_loss"))
+        """Lower is better; ``config.select_by`` (``auto``: depth AbsRel with depth ground truth, else pose ATE-5
+        with a poses file, else the validation loss)."""
+        key = self.cfg.select_by
+        if key == "auto":
+            for k in ("val_abs_rel", "val_ate", "val_loss"):
+                if row.get(k) is not None and math.isfinite(row[k]):
+                    return row[k]
+            return None
+        value = row.get(f"val_{key}")
+        if value is None:
+            raise ConfigError(f"select_by {key!r}: validation has no '{key}' (have: "
+                              f"{', '.join(k[4:] for k in row if k.startswith('val_'))})")
+        return value
 
     def fit(self) -> dict[str, float]:
         """Train to ``config.steps``; returns the last logged row (with validation when available)."""

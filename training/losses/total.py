@@ -42,6 +42,8 @@ class LossWeights:
     eps: depth (metres) at or below which a warped point counts as behind the camera.
     depth_edge_tolerance: depth consistency ignores points whose bilinear depth sample straddles a depth
         edge (2×2 pixels spanning more than this fraction); 0 = plain bilinear sampling (the paper).
+    depth_norm: ``l1`` (the residual's length, default) or ``l2`` (its square, the paper's form).
+    knn_backend: "auto" | "kdtree" | "torch" neighbour search of the Laplacian terms (see training.knn).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)

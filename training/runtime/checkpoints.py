@@ -34,7 +34,11 @@ def rng_state() -> dict[str, Any]:
     """Python, numpy and torch (CPU, and CUDA when present) RNG states."""
     import torch
 
-    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    key, keys, pos, has_gauss, cached = np.random.get_state()
+    # Only tensors, numbers, strings and tuples: a checkpoint loads with ``weights_only=True`` (no pickled code).
+    numpy_state = {"key": str(key), "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
+                   "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+    state = {"python": random.getstate(), "numpy": numpy_state, "torch": torch.get_rng_state()}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
@@ -43,8 +47,13 @@ def rng_state() -> dict[str, Any]:
 def set_rng_state(state: dict[str, Any]) -> None:
     import torch
 
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    random.setstate(tuple(state["python"]))
+    ns = state["numpy"]
+    if isinstance(ns, dict):
+        np.random.set_state((ns["key"], ns["keys"].numpy().astype(np.uint32), ns["pos"], ns["has_gauss"],
+                             ns["cached_gaussian"]))
+    else:
+        np.random.set_state(ns)
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
@@ -76,8 +85,11 @@ def load_checkpoint(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
     if not path.is_file():
         raise InputError(path, "checkpoint not found")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except (RuntimeError, EOFError, pickle.UnpicklingError, ValueError, OSError) as exc:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)  # never runs code from the file
+    except pickle.UnpicklingError as exc:
+        raise InputError(path, "holds objects other than tensors, numbers and strings (a checkpoint of an older "
+                               f"monoflow, or not one at all); refused: {str(exc).splitlines()[0][:120]}") from None
+    except (RuntimeError, EOFError, ValueError, OSError) as exc:
         raise InputError(path, f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})") from None
     if not isinstance(ckpt, dict) or "checkpoint_version" not in ckpt:
         raise InputError(path, "not a monoflow training checkpoint (no checkpoint_version)")
