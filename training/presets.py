@@ -22,7 +22,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
                  "lidar_rings": 0.5, "density_drop": 0.3, "ground_jitter_m": 0.3},
         "optim": {"batch_size": 4},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
-                  "ego_head": True, "eval_norm_stats": "input"},
+                  "ego_head": True},
     }
     for key, value in (overrides or {}).items():
         node = base
