@@ -4,6 +4,8 @@ Examples::
 
     monoflow-evaluate run --split cache/demo/world/sceneflow/flownet3d --checkpoint runs/demo/latest.pt \\
         --baselines zero,icp-p2p,fgr --out runs/demo/eval
+    monoflow-evaluate run --split cache/demo/world/sceneflow/flownet3d --checkpoint runs/demo/latest.pt \\
+        --baselines icp-p2p,nsfp --refine                  # + NSFP and "ours + refinement" rows
     monoflow-evaluate run --split KITTI_processed_occ_final --format hplflownet --baselines icp-p2l --seeds 0,1,2
     monoflow-evaluate score runs/demo/eval/predictions-*.h5     # recompute metrics from saved predictions
     monoflow-evaluate ablations --world cache/demo/world --out runs/ablations --steps 200
@@ -31,7 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
     r.add_argument("--baselines", default="zero,icp-p2p,icp-p2l,fgr",
-                   help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr ('' for none)")
+                   help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr, nsfp ('' for none)")
+    r.add_argument("--refine", action="store_true",
+                   help="also score each checkpoint followed by label-free test-time refinement, as its own row "
+                        "'<net> + refinement' (evaluation/optimise)")
     r.add_argument("--protocol", default="paper", choices=("paper", "full"))
     r.add_argument("--n-points", type=int, default=None, help="points sampled per cloud (default: the net's, else 8192)")
     r.add_argument("--n-score", type=int, default=None, help="scored points, paper protocol (default: net's L0, else 2048)")
@@ -76,7 +81,7 @@ def _run(args) -> int:
     import re
     import sys
 
-    from evaluation.methods import NetMethod, make_baseline
+    from evaluation.methods import NetMethod, make_baseline, refined
     from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
     from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
@@ -95,10 +100,14 @@ def _run(args) -> int:
     first = scenes[0]
     nets = [NetMethod(c, device=args.device) for c in args.checkpoint]
     baselines = list(dict.fromkeys(_csv(args.baselines)))
+    if args.refine and not nets:
+        raise ConfigError("--refine refines a net's flow: give at least one --checkpoint")
     methods = [*nets, *[make_baseline(b) for b in baselines]]
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
+    if args.refine:  # after the nets got distinct names; one refined row right after each net's own row
+        methods = [x for m in methods for x in ([m, refined(m)] if any(m is n for n in nets) else [m])]
     if "static" in baselines and first.pose is None:
         raise ConfigError(f"baseline 'static' needs T_1→2 per scene; the scenes of {args.split} have no pose")
     sizes = {(n.n_points, n.n_score) for n in nets}
