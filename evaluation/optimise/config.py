@@ -111,6 +111,8 @@ class RefineConfig(LoopConfig, ChamferConfig):
     laplacian_k: neighbours of the Laplacian (paper: 10).
     rigid_weight: weight of ``L_rigid`` (m², as the loss; 0 switches the rigid prior off).
     rigid_scale: Geman–McClure scale, m: residuals far above it cost at most ``rigid_weight``.
+    rigid_lr: Adam step size of the ego-motion's correction (``"rigid-mlp"``): radians for the rotation
+        vector, metres for the translation.
     layers, hidden: the residual MLP's size (``"mlp"`` only).
     """
 
@@ -122,6 +124,7 @@ class RefineConfig(LoopConfig, ChamferConfig):
     laplacian_k: int = 10
     rigid_weight: float = 0.05
     rigid_scale: float = 0.2
+    rigid_lr: float = 1e-2
     layers: int = 4
     hidden: int = 64
 

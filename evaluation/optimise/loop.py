@@ -34,8 +34,10 @@ class FitResult:
     history: list[float]
 
 
-def minimise(params: Iterable[Tensor], step: Callable[[], tuple[Tensor, Tensor]], cfg: LoopConfig) -> FitResult:
-    """Run Adam(lr = ``cfg.lr``) on ``params`` for at most ``cfg.iterations`` steps.
+def minimise(params: Iterable[Tensor] | Iterable[dict], step: Callable[[], tuple[Tensor, Tensor]],
+             cfg: LoopConfig) -> FitResult:
+    """Run Adam(lr = ``cfg.lr``) on ``params`` (tensors, or Adam parameter groups with their own ``lr``)
+    for at most ``cfg.iterations`` steps.
 
     ``step()`` returns ``(loss, flow)`` for the current parameters (the loss a scalar tensor with grad).
     Early stopping: the loop ends once ``cfg.patience`` consecutive steps have not lowered the best loss

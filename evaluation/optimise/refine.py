@@ -40,7 +40,7 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
         raise ValueError(f"init flow has shape {tuple(f0.shape[1:])}, expected {tuple(p1.shape[1:])}")
     pts = p1[0]
     rot0, t0, rigid0 = robust_rigid_fit(pts, f0[0], scale=cfg.rigid_scale)
-    params: list[Tensor]
+    params: list[Any]
     if cfg.parametrisation == "free":
         var = f0.clone().requires_grad_(True)
         params = [var]
@@ -59,7 +59,7 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
         omega = torch.zeros(3, device=dev, requires_grad=True)
         dt = torch.zeros(3, device=dev, requires_grad=True)
         mlp = FlowMLP(cfg.layers, cfg.hidden, seed=cfg.seed, zero_output=True).to(dev)
-        params = [omega, dt, *mlp.parameters()]
+        params = [{"params": [omega, dt], "lr": cfg.rigid_lr}, {"params": list(mlp.parameters())}]
 
         def flows() -> tuple[Tensor, Tensor]:
             rot = so3_exp(omega) @ rot0

@@ -30,15 +30,20 @@ def weighted_kabsch(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tensor, 
 
 def robust_rigid_fit(pc1: Tensor, flow: Tensor, scale: float = 0.2, steps: int = 10) -> tuple[Tensor, Tensor, Tensor]:
     """IRLS Geman–McClure rigid fit (module docstring); returns ``R`` (3, 3), ``t`` (3,) metres and the
-    rigid flow ``(R p + t) − p`` (N, 3), all in pc1's dtype (computed in float64, without gradient)."""
+    rigid flow ``(R p + t) − p`` (N, 3), all in pc1's dtype (computed in float64, without gradient).
+
+    The scale of each step is ``max(scale, 1.4826 · median residual)`` (the MAD estimate of the inliers'
+    spread): with an accurate flow it is ``scale`` and moving points are rejected; with a noisy flow
+    (a poorly trained net) the static points' noise is not mistaken for motion and is averaged instead.
+    """
     with torch.no_grad():
         src = pc1.detach().double()
         dst = src + flow.detach().double()
         w = torch.ones(len(src), dtype=torch.float64, device=src.device)
-        s2 = float(scale) ** 2
         rot, t = weighted_kabsch(src, dst, w)
         for _ in range(steps):
             r2 = ((src @ rot.T + t - dst) ** 2).sum(-1)
+            s2 = max(float(scale), 1.4826 * float(r2.sqrt().median())) ** 2
             w = s2 / (r2 + s2) ** 2
             rot, t = weighted_kabsch(src, dst, w)
         rigid = src @ rot.T + t - src
