@@ -108,6 +108,9 @@ def _run(args) -> int:
     _unique_names(methods)
     if args.refine:  # after the nets got distinct names; one refined row right after each net's own row
         methods = [x for m in methods for x in ([m, refined(m)] if any(m is n for n in nets) else [m])]
+    for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
+        if hasattr(getattr(m, "config", None), "iterations"):
+            m.config.device = args.device
     if "static" in baselines and first.pose is None:
         raise ConfigError(f"baseline 'static' needs T_1→2 per scene; the scenes of {args.split} have no pose")
     sizes = {(n.n_points, n.n_score) for n in nets}
