@@ -7,6 +7,8 @@ Examples::
     monoflow-evaluate run --split KITTI_processed_occ_final --protocol hplflownet \\
         --mapping train_mapping.txt --baselines icp-p2l --seeds 0,1,2
     monoflow-evaluate run --split kitti_rm_ground --protocol released --scenes kitti_t --checkpoint ft.pt
+    monoflow-evaluate run --split cache/demo/world/sceneflow/flownet3d --checkpoint runs/demo/latest.pt \\
+        --baselines icp-p2p,nsfp --refine                  # + NSFP and "ours + refinement" rows
     monoflow-evaluate score runs/demo/eval/predictions-*.h5     # recompute metrics from saved predictions
     monoflow-evaluate ablations --world cache/demo/world --out runs/ablations --steps 200
     monoflow-evaluate curves runs/demo                  # runs/demo/curves.png from train.csv / val.csv
@@ -37,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
     r.add_argument("--baselines", default="zero,icp-p2p,icp-p2l,fgr",
-                   help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr ('' for none)")
+                   help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr, nsfp ('' for none)")
     r.add_argument("--protocol", default="fps", choices=(*PROTOCOLS, *ALIASES),
                    help="which points are scored (docs/evaluation-protocols.md): released = first n-score of the "
                         "seeded random sample (3DUnMonoFlow), fps = n-score farthest-point samples (the level-0 "
@@ -54,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--scenes", default="all",
                    help="all | first:N | last:N | kitti_t (last 50 of the 150 KITTI_o scenes), over the sorted "
                         "scene names after --mapping")
+    r.add_argument("--refine", action="store_true",
+                   help="also score each checkpoint followed by label-free test-time refinement, as its own row "
+                        "'<net> + refinement' (evaluation/optimise)")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -117,7 +122,7 @@ def _run(args) -> int:
     import re
     import sys
 
-    from evaluation.methods import NetMethod, make_baseline
+    from evaluation.methods import NetMethod, make_baseline, refined
     from evaluation.protocols import run_protocol, summary_rows
     from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
@@ -158,10 +163,17 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
+    if args.refine and not nets:
+        raise ConfigError("--refine refines a net's flow: give at least one --checkpoint")
     methods = [*nets, *[make_baseline(b) for b in baselines]]
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
+    if args.refine:  # after the nets got distinct names; one refined row right after each net's own row
+        methods = [x for m in methods for x in ([m, refined(m)] if any(m is n for n in nets) else [m])]
+    for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
+        if hasattr(getattr(m, "config", None), "iterations"):
+            m.config.device = args.device
     if "static" in baselines and first.pose is None:
         raise ConfigError(f"baseline 'static' needs T_1→2 per scene; the scenes of {args.split} have no pose")
     sizes = {(n.n_points, n.n_score) for n in nets}

@@ -124,11 +124,20 @@ class NetMethod:
         return flow[0].cpu().numpy().astype(np.float32)
 
 
-BASELINES = ("zero", "static", "icp-p2p", "icp-p2l", "fgr")
+def refined(method: FlowMethod, config: Any = None) -> FlowMethod:
+    """``method`` followed by label-free test-time refinement (:class:`evaluation.optimise.RefinedMethod`),
+    named ``"<method name> + refinement"``: a separate row, the method's own row is left as it is."""
+    from evaluation.optimise import RefineConfig, RefinedMethod
+
+    return RefinedMethod(method, config or RefineConfig())
+
+
+BASELINES = ("zero", "static", "icp-p2p", "icp-p2l", "fgr", "nsfp")
 
 
 def make_baseline(name: str) -> FlowMethod:
-    """One of :data:`BASELINES`, with its default settings (``static`` needs a split with poses)."""
+    """One of :data:`BASELINES`, with its default settings (``static`` needs a split with poses; ``nsfp``
+    is Neural Scene Flow Prior fitted per scene, :class:`evaluation.optimise.NSFPMethod`)."""
     from evaluation.baselines.fgr import FGRBaseline
     from evaluation.baselines.icp import ICPBaseline, ICPConfig
     from evaluation.baselines.zero import ZeroFlowBaseline
@@ -143,4 +152,8 @@ def make_baseline(name: str) -> FlowMethod:
         return BaselineMethod(ICPBaseline(ICPConfig(method="point_to_plane")))
     if name == "fgr":
         return BaselineMethod(FGRBaseline())
+    if name == "nsfp":
+        from evaluation.optimise import NSFPMethod
+
+        return NSFPMethod()  # per-scene MLP prior fitted with a truncated Chamfer loss (evaluation/optimise)
     raise ConfigError(f"unknown baseline '{name}' (choose from {', '.join(BASELINES)})")

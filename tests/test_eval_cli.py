@@ -251,3 +251,31 @@ def test_python_dash_m_and_help_are_quick() -> None:
                           "print(sorted(m for m in ('torch', 'zarr', 'h5py', 'matplotlib') if m in sys.modules))"],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert res.stdout.strip() == "[]"
+
+
+def test_nsfp_baseline_and_refine_rows(world: Path, checkpoint: Path, tmp_path: Path, capsys) -> None:
+    """``--baselines nsfp --refine``: an NSFP row and an 'ours + refinement' row beside (never instead of)
+    the net's own row, scored on the same points; the net's row is what it is without --refine."""
+    split = str(world / "sceneflow" / "flownet3d")
+    common = ["run", "--split", split, "--checkpoint", str(checkpoint), "--no-progress", "--device", "cpu"]
+    assert main([*common, "--baselines", "zero", "--out", str(tmp_path / "plain")]) == 0
+    assert main([*common, "--baselines", "zero,nsfp", "--refine", "--out", str(tmp_path / "ref"), "--no-warmup",
+                 "--save-predictions"]) == 0
+    printed = capsys.readouterr().out
+    assert "| nsfp |" in printed and "| ours (run, step 3) + refinement |" in printed
+    rows = json.loads((tmp_path / "ref" / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) + refinement", "zero", "nsfp"]
+    plain = json.loads((tmp_path / "plain" / "results.json").read_text())["rows"]
+    assert rows[0]["EPE3D"] == plain[0]["EPE3D"]
+    by = {r["method"]: r for r in rows}
+    assert by["nsfp"]["EPE3D"] < by["zero"]["EPE3D"]  # an untrained net may be anything; NSFP beats zero flow
+    assert all(np.isfinite(r["EPE3D"]) and r["seconds_per_scene"] > 0 for r in rows)
+    pts = [[s.points for s in read_predictions(p)] for p in sorted((tmp_path / "ref").glob("predictions-*.h5"))]
+    assert len(pts) == 4
+    for other in pts[1:]:
+        for a, b in zip(pts[0], other):
+            np.testing.assert_array_equal(a, b)
+    # --refine needs a net to refine
+    assert main(["run", "--split", split, "--baselines", "zero", "--refine", "--out", str(tmp_path / "x"),
+                 "--no-progress"]) == 2
+    assert "--refine refines a net's flow" in capsys.readouterr().err

@@ -1,0 +1,81 @@
+"""Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline and the test-time
+refinement of a net's flow (evaluation/optimise) — through the real protocol (``run_protocol``: same
+sampled points for every method, one untimed warm-up call, then the mean over scenes), on CPU and, when
+one is present, on CUDA.
+
+The scenes are a synthetic world's scene-flow test split (generated into a temporary folder unless
+``--split`` is given). The refined net is an untrained demo-size net unless ``--checkpoint`` is given
+(time hardly depends on the weights; quality does, so EPE3D is only meaningful with a trained net).
+Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_optimise.py                      # 3 scenes, 2048 points, CPU (+ CUDA)
+    .venv/bin/python benchmarks/bench_optimise.py --split /tmp/demo/world/sceneflow/flownet3d \\
+        --checkpoint /tmp/demo/flow_run_gt/latest.pt --scenes 19 --threads 2
+
+Prints a Markdown table; timings on a shared machine are noisy, so the load average is printed too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import platform
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.bench_eval import _checkpoint, _split  # noqa: E402  (same split and checkpoint set-up)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--split", default="", help="a scene-flow split (default: a generated synthetic one)")
+    p.add_argument("--checkpoint", default="", help="trained flow net to refine (default: an untrained demo-size net)")
+    p.add_argument("--scenes", type=int, default=3, help="scenes timed per method")
+    p.add_argument("--n-points", type=int, default=2048, help="points per cloud (the demo's 2048)")
+    p.add_argument("--n-score", type=int, default=512, help="scored points")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    p.add_argument("--devices", default="cpu,cuda", help="comma list; cuda is skipped when unavailable")
+    args = p.parse_args(argv)
+
+    import torch
+
+    from evaluation.methods import NetMethod
+    from evaluation.optimise import NSFPConfig, NSFPMethod, RefineConfig, RefinedMethod
+    from evaluation.protocols import ProtocolConfig, run_protocol
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+          f"torch threads {torch.get_num_threads()}, CUDA {torch.cuda.is_available()}, "
+          f"load average {os.getloadavg()[0]:.2f}")
+    devices = [d for d in args.devices.split(",") if d == "cpu" or (d == "cuda" and torch.cuda.is_available())]
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        args.scenes = max(1, args.scenes)
+        split = _split(args, tmp)
+        split = dataclasses.replace(split, entries=split.entries[: args.scenes])
+        ckpt = args.checkpoint or str(_checkpoint(tmp, "demo", args.n_points, 0.5))
+        cfg = ProtocolConfig(n_points=args.n_points, n_score=args.n_score)
+        print(f"{len(split)} scenes of {split.root}; {args.n_points} points sampled, {args.n_score} scored; "
+              f"net {'trained: ' + args.checkpoint if args.checkpoint else 'untrained (demo size)'}")
+        print("\n### Label-free per-scene optimisation, time per scene (mean after one warm-up call)\n")
+        print("| device | method | s per scene | EPE3D (m) | iterations (last scene) |")
+        print("|---|---|---:|---:|---:|")
+        for dev in devices:
+            net = NetMethod(ckpt, device=dev, name="ours")
+            methods = [net, NSFPMethod(NSFPConfig(device=dev)), RefinedMethod(net, RefineConfig(device=dev))]
+            for res, m in zip(run_protocol(split, methods, cfg, progress=False), methods):
+                last = getattr(m, "last", None)
+                its = str(last.iterations) if last is not None else "–"
+                print(f"| {dev} | {res.name} | {res.seconds_per_scene:.3f} | {res.metrics['EPE3D']:.3f} | {its} |",
+                      flush=True)
+    print(f"\nload average after: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

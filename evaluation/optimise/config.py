@@ -1,0 +1,149 @@
+"""Settings of the label-free per-scene optimisation (NSFP baseline and test-time refinement).
+
+Units: points and flows in metres (camera frame, x right, y down, z forward); loss values in m²;
+learning rates are Adam step sizes in the units of the optimised variables (network weights for the
+MLP prior, metres for free per-point flow).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pipeline.errors import ConfigError
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+@dataclass
+class LoopConfig:
+    """The shared optimisation loop (:func:`evaluation.optimise.loop.minimise`).
+
+    iterations: most Adam steps per scene (the iteration budget).
+    lr: Adam step size.
+    patience: stop after this many consecutive steps whose loss did not improve on the best loss so
+        far by more than ``min_delta`` (0 = never stop early).
+    min_delta: smallest loss decrease that counts as an improvement, m² (absolute).
+    seed: seeds the MLP's initial weights (per call, so every scene starts from the same weights).
+    device: ``"auto"`` (CUDA when available), ``"cpu"`` or ``"cuda"``.
+    """
+
+    iterations: int = 60
+    lr: float = 8e-3
+    patience: int = 20
+    min_delta: float = 1e-4
+    seed: int = 0
+    device: str = "auto"
+
+    def validate(self) -> "LoopConfig":
+        if self.iterations < 1:
+            raise ConfigError(f"iterations must be >= 1, got {self.iterations}")
+        if not self.lr > 0:
+            raise ConfigError(f"lr must be > 0, got {self.lr}")
+        if self.patience < 0 or self.min_delta < 0:
+            raise ConfigError(f"patience and min_delta must be >= 0, got {self.patience}, {self.min_delta}")
+        if self.device not in DEVICES:
+            raise ConfigError(f"device must be one of {DEVICES}, got {self.device!r}")
+        return self
+
+
+@dataclass
+class ChamferConfig:
+    """The data term: truncated bidirectional Chamfer distance between ``pc1 + flow`` and ``pc2``.
+
+    truncate: nearest-neighbour distances above this many metres count as this value (no gradient):
+        points with no counterpart in the other cloud (occlusion, field of view) stop pulling the flow.
+        ``inf`` gives the paper's eq. 13 (Wang et al.) unchanged.
+    """
+
+    truncate: float = 2.0
+
+    def validate(self) -> "ChamferConfig":
+        if not self.truncate > 0:
+            raise ConfigError(f"truncate must be > 0 m, got {self.truncate}")
+        return self
+
+
+@dataclass
+class NSFPConfig(LoopConfig, ChamferConfig):
+    """Neural Scene Flow Prior (Li, Kaesemodel Pontes & Lucey, NeurIPS 2021) fitted to one scene.
+
+    layers: hidden layers of the MLP (paper: 8).
+    hidden: units per hidden layer (paper: 128).
+    backward: also fit a backward-flow MLP ``g`` on the warped cloud and add the cycle term
+        ``mean ‖f(p) + g(p + f(p))‖²`` (m²; the paper's optional cycle consistency); doubles the cost.
+    cycle_weight: weight of that cycle term (dimensionless).
+
+    The paper runs up to 5000 Adam steps (lr 0.008, patience 100); the default budget here (60 steps,
+    patience 20) keeps a 2048-point scene near 3 s on the 2-core development CPU (the demo's budget).
+    More steps lower EPE3D further (demo split: 0.208 m at 40, 0.201 at 60, 0.182 at 150 steps); raise
+    ``iterations`` and ``patience`` on a GPU.
+    """
+
+    layers: int = 8
+    hidden: int = 128
+    backward: bool = False
+    cycle_weight: float = 1.0
+
+    def validate(self) -> "NSFPConfig":
+        LoopConfig.validate(self)
+        ChamferConfig.validate(self)
+        if self.layers < 1 or self.hidden < 1:
+            raise ConfigError(f"layers and hidden must be >= 1, got {self.layers}, {self.hidden}")
+        return self
+
+
+PARAMETRISATIONS = ("free", "mlp", "rigid-mlp")
+
+
+@dataclass
+class RefineConfig(LoopConfig, ChamferConfig):
+    """Test-time refinement of a given flow ``f₀`` (e.g. the net's) with label-free terms.
+
+    The loss is ``L = L_Cha,trunc + laplacian_weight · L_LR + rigid_weight · L_rigid`` where ``L_Cha,trunc``
+    is the truncated Chamfer term (:class:`ChamferConfig`; eq. 13 of Wang et al. when untruncated),
+    ``L_LR`` the paper's Laplacian term (eq. 16) and ``L_rigid = mean ρ(‖f − f_R‖)`` pulls the flow
+    towards the rigid (ego-motion) flow ``f_R = (R p + t) − p``, with the Geman–McClure
+    ``ρ(r) = r² / (r² + rigid_scale²)`` so that points that truly move (r ≫ rigid_scale) are let go.
+    ``R, t`` start from a robust fit to ``f₀`` (:func:`evaluation.optimise.rigid.robust_rigid_fit`).
+
+    parametrisation:
+        ``"rigid-mlp"`` (default): ``f = f_R(R, t) + r₀ + MLP_θ(p)`` — the ego-motion, optimised (its
+        correction as a rotation vector and a translation), plus the part of ``f₀`` that the robust fit
+        calls non-rigid (``r₀ = (1 − w) (f₀ − f_R)``, w the Geman–McClure inlier weight), plus an MLP
+        residual starting at zero;
+        ``"mlp"``: ``f = f₀ + MLP_θ(p)`` (NSFP's prior as a residual on the given flow);
+        ``"free"``: one flow vector per point, starting at ``f₀``.
+        All three start at (or, for rigid-mlp, next to) the given flow.
+    laplacian_weight: weight of ``L_LR`` (dimensionless; 0 by default: on the development world it
+        neither helped nor was cheap — it doubles the time per step; 1 is the paper's level-0 weight).
+    laplacian_k: neighbours of the Laplacian (paper: 10).
+    rigid_weight: weight of ``L_rigid`` (m², as the loss; 0 switches the rigid pull off).
+    rigid_scale: Geman–McClure scale, m: residuals far above it cost at most ``rigid_weight``.
+    rigid_lr: Adam step size of the ego-motion's correction (``"rigid-mlp"``): radians for the rotation
+        vector, metres for the translation (``lr`` applies to the MLP's weights, or to the free flow, m).
+    layers, hidden: the residual MLP's size (``"mlp"`` and ``"rigid-mlp"``; smaller than NSFP's 8 × 128
+        because it only corrects a given flow, and ~10× cheaper per step).
+    """
+
+    lr: float = 3e-3
+    iterations: int = 150
+    patience: int = 20
+    parametrisation: str = "rigid-mlp"
+    laplacian_weight: float = 0.0
+    laplacian_k: int = 10
+    rigid_weight: float = 0.05
+    rigid_scale: float = 0.2
+    rigid_lr: float = 1e-2
+    layers: int = 4
+    hidden: int = 64
+
+    def validate(self) -> "RefineConfig":
+        LoopConfig.validate(self)
+        ChamferConfig.validate(self)
+        if self.parametrisation not in PARAMETRISATIONS:
+            raise ConfigError(f"parametrisation must be one of {PARAMETRISATIONS}, got {self.parametrisation!r}")
+        if self.laplacian_weight < 0 or self.rigid_weight < 0 or not self.rigid_scale > 0:
+            raise ConfigError("laplacian_weight and rigid_weight must be >= 0 and rigid_scale > 0")
+        if self.laplacian_k < 1:
+            raise ConfigError(f"laplacian_k must be >= 1, got {self.laplacian_k}")
+        return self
