@@ -67,3 +67,16 @@ def test_net_with_ego_head_trains_and_can_be_switched_off():
         assert [f.shape[1] for f in out.flows] == list(lp[:4])
     with pytest.raises(Exception, match="ego_sigma"):
         HALFlowConfig(ego_sigma=0.0)
+
+
+def test_robust_scale_follows_the_noise_of_the_flow():
+    """With 0.3 m/axis noise a fixed 0.1 m scale calls most static points moving (they keep their noise);
+    the MAD scale (3 × 1.4826 × median residual) recognises them and hands them the rigid flow."""
+    p, gt, noisy, _ = _scene(noise=0.3)
+    fixed, *_, w_fixed = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=0.0)
+    robust, *_, w_robust = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=3.0)
+    static = slice(60, None)
+    assert w_fixed[:, static].mean() < 0.3 < 0.7 < w_robust[:, static].mean()
+    err_fixed = (fixed - gt).norm(dim=-1)[:, static].mean()
+    err_robust = (robust - gt).norm(dim=-1)[:, static].mean()
+    assert err_robust < 0.5 * err_fixed
