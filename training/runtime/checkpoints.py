@@ -1,7 +1,9 @@
 """Atomic training checkpoints: model, optimiser, scheduler, step and every RNG state.
 
 Written to ``<name>.tmp-<pid>`` then ``os.replace``d, so a killed run never leaves a half-written
-checkpoint, and ``latest.pt`` always names a complete one.
+checkpoint, and ``latest.pt`` always names a complete one; temp files of dead writers are removed by the
+next save. Read with ``torch.load(weights_only=True)``: a checkpoint holds tensors and plain Python data
+only (the numpy RNG state is saved as a tensor), so loading one never runs code from the file.
 """
 
 from __future__ import annotations
@@ -30,11 +32,29 @@ def seed_all(seed: int, deterministic: bool = False) -> None:
     torch.manual_seed(seed)
 
 
-def rng_state() -> dict[str, Any]:
-    """Python, numpy and torch (CPU, and CUDA when present) RNG states."""
+def _numpy_state_to_plain(state: tuple) -> dict[str, Any]:
+    """numpy's legacy RNG state as tensors and plain data (loadable with ``weights_only=True``)."""
     import torch
 
-    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    name, keys, pos, has_gauss, cached = state
+    return {"name": str(name), "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
+            "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+
+
+def _numpy_state_from_plain(state: Any) -> tuple:
+    """Inverse of :func:`_numpy_state_to_plain`; a tuple (checkpoints written before it) passes through."""
+    if not isinstance(state, dict):
+        return state
+    keys = np.asarray(state["keys"].numpy(), dtype=np.uint32)
+    return (state["name"], keys, state["pos"], state["has_gauss"], state["cached_gaussian"])
+
+
+def rng_state() -> dict[str, Any]:
+    """Python, numpy and torch (CPU, and CUDA when present) RNG states, as tensors and plain data."""
+    import torch
+
+    state = {"python": random.getstate(), "numpy": _numpy_state_to_plain(np.random.get_state()),
+             "torch": torch.get_rng_state()}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
@@ -44,7 +64,7 @@ def set_rng_state(state: dict[str, Any]) -> None:
     import torch
 
     random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    np.random.set_state(_numpy_state_from_plain(state["numpy"]))
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
@@ -56,10 +76,41 @@ def save_checkpoint(path: str | os.PathLike[str], payload: dict[str, Any]) -> Pa
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_tmp(path)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    torch.save({"checkpoint_version": CHECKPOINT_VERSION, **payload}, tmp)
-    os.replace(tmp, path)
+    try:
+        torch.save({"checkpoint_version": CHECKPOINT_VERSION, **payload}, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # disk full surfaces as either, depending on where torch fails
+        tmp.unlink(missing_ok=True)
+        text = " ".join(str(exc).split())[:160]
+        raise InputError(path, f"cannot write checkpoint ({type(exc).__name__}: {text}); "
+                               "the previous checkpoint, if any, is unchanged") from None
     return path
+
+
+def remove_stale_tmp(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove ``<path>.tmp-<pid>`` files left by writers that no longer run; return what was removed."""
+    from pipeline.cache.manifest import pid_alive
+
+    path = Path(path)
+    removed = []
+    if not path.parent.is_dir():
+        return removed
+    prefix = f"{path.name}.tmp-"
+    for p in path.parent.iterdir():
+        rest = p.name[len(prefix):] if p.name.startswith(prefix) else ""
+        if rest.isdigit() and (int(rest) == os.getpid() or not pid_alive(int(rest))):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def _numpy_globals() -> list[Any]:
+    """The numpy types of checkpoints written before the RNG state was saved as a tensor: plain arrays,
+    rebuilt without running code from the file."""
+    core = getattr(np, "_core", None) or np.core
+    return [core.multiarray._reconstruct, np.ndarray, np.dtype, type(np.dtype(np.uint32))]
 
 
 def load_checkpoint(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
@@ -68,17 +119,9 @@ def load_checkpoint(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
     ``kind`` is the trainer that wrote it (``"flow"`` or ``"depth"``). Any problem is one
     :class:`InputError` naming the file.
     """
-    import pickle
+    from pipeline.safeload import load_weights_only
 
-    import torch
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "checkpoint not found")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except (RuntimeError, EOFError, pickle.UnpicklingError, ValueError, OSError) as exc:
-        raise InputError(path, f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})") from None
+    ckpt = load_weights_only(path, _numpy_globals())
     if not isinstance(ckpt, dict) or "checkpoint_version" not in ckpt:
         raise InputError(path, "not a monoflow training checkpoint (no checkpoint_version)")
     if ckpt["checkpoint_version"] != CHECKPOINT_VERSION:
