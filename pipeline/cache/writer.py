@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache.encode import encode_block
+from pipeline.cache.integrity import CHUNK_FILES_ATTR, list_block_files
 from pipeline.cache.layout import (
     BLOCKS_DIR,
     HEADER_NAME,
@@ -80,6 +81,8 @@ class CacheWriter:
             group = block_format.create_group(tmp)
             group.attrs.update(encoded.attrs)
             block_format.write_arrays(group, encoded.arrays)
+            # every chunk file and its size, so that a lost or truncated chunk is seen (integrity.py)
+            group.attrs[CHUNK_FILES_ATTR] = list_block_files(tmp)
             block_format.consolidate(tmp)
             _fsync_tree(tmp)
             try:
