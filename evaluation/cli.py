@@ -23,10 +23,10 @@ def _csv(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="monoflow-evaluate", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="monoflow-evaluate", allow_abbrev=False, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     sub = p.add_subparsers(dest="command")
-    r = sub.add_parser("run", help="evaluate checkpoints and baselines on a split")
+    r = sub.add_parser("run", allow_abbrev=False, help="evaluate checkpoints and baselines on a split")
     r.add_argument("--split", required=True, help="test split folder (FlowNet3D npz, HPLFlowNet, OpenSceneFlow h5)")
     r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
@@ -45,9 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-warmup", action="store_true",
                    help="time the first call too (default: one untimed warm-up call per method)")
     r.add_argument("--no-progress", action="store_true")
-    s = sub.add_parser("score", help="recompute metrics from a predictions file")
+    s = sub.add_parser("score", allow_abbrev=False, help="recompute metrics from a predictions file")
     s.add_argument("predictions", nargs="+")
-    a = sub.add_parser("ablations", help="train and evaluate the paper's Table II / III variants")
+    a = sub.add_parser("ablations", allow_abbrev=False, help="train and evaluate the paper's Table II / III variants")
     from evaluation.ablations import add_arguments
 
     add_arguments(a)

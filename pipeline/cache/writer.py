@@ -29,7 +29,7 @@ from pipeline.cache.layout import (
 )
 from pipeline.cache.manifest import ExpectedBlocks, make_header, merge, read_header, remove_stale_tmp
 from pipeline.cache.records import BlockRecord
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputError
 
 
 class CacheWriter:
@@ -93,6 +93,9 @@ class CacheWriter:
                     return False
                 raise
             fsync_dir(final.parent)
+        except OSError as exc:  # disk full, quota, permissions: nothing of the block stays, one line
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise InputError(final, f"cannot write block ({exc.strerror or exc}); nothing of it was kept") from None
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

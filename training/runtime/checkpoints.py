@@ -129,3 +129,11 @@ def load_checkpoint(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
     if ckpt.get("kind") != kind:
         raise InputError(path, f"checkpoint of kind '{ckpt.get('kind')}', expected '{kind}'")
     return ckpt
+
+
+def nonfinite_entries(state: dict[str, Any]) -> list[str]:
+    """Names of the floating-point tensors of a state dict holding NaN or inf."""
+    import torch
+
+    return [k for k, v in state.items()
+            if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all())]
