@@ -8,6 +8,7 @@ only (the numpy RNG state is saved as a tensor), so loading one never runs code 
 
 from __future__ import annotations
 
+import io
 import os
 import random
 from pathlib import Path
@@ -78,13 +79,17 @@ def save_checkpoint(path: str | os.PathLike[str], payload: dict[str, Any]) -> Pa
     path.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_tmp(path)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    buf = io.BytesIO()  # serialised in memory, written by us: a full disk is then a plain OSError
+    torch.save({"checkpoint_version": CHECKPOINT_VERSION, **payload}, buf)
     try:
-        torch.save({"checkpoint_version": CHECKPOINT_VERSION, **payload}, tmp)
+        with open(tmp, "wb") as f:
+            f.write(buf.getbuffer())
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
-    except (OSError, RuntimeError) as exc:  # disk full surfaces as either, depending on where torch fails
+    except OSError as exc:
         tmp.unlink(missing_ok=True)
-        text = " ".join(str(exc).split())[:160]
-        raise InputError(path, f"cannot write checkpoint ({type(exc).__name__}: {text}); "
+        raise InputError(path, f"cannot write checkpoint ({exc.strerror or exc}); "
                                "the previous checkpoint, if any, is unchanged") from None
     return path
 
