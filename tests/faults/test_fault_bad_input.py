@@ -156,3 +156,17 @@ def test_evaluate_checkpoint_with_a_nan_weight(tmp_path: Path, capsys) -> None:
                         "--out", str(tmp_path / "out"), "--no-progress"])
     assert rc == 2
     _one_line(capsys, str(bad), "non-finite weights", key)
+
+
+def test_tiny_scene_is_scored_with_a_note(tmp_path: Path, capsys) -> None:
+    from evaluation.cli import main as evaluate_main
+
+    split = tmp_path / "split"
+    split.mkdir()
+    pts = np.array([[0.0, 0.0, 5.0], [1.0, 0.0, 6.0], [0.0, 1.0, 7.0]], np.float32)
+    np.savez(split / "000000.npz", pos1=pts, pos2=pts + 0.1, gt=np.full((3, 3), 0.1, np.float32))
+    rc = evaluate_main(["run", "--split", str(split), "--baselines", "zero", "--n-points", "128", "--n-score", "64",
+                        "--out", str(tmp_path / "out"), "--no-progress"])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "note: 1 scene(s) have fewer frame-1 points than the 64 scored" in err and "000000 (3)" in err
