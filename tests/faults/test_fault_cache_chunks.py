@@ -28,7 +28,7 @@ def test_every_array_of_the_fixture_has_a_listed_chunk(tiny_cache: Path) -> None
     assert arrays == {"K", "T", "scale", "depth", "rgb", "idx1", "idx2", "offsets1", "offsets2", "gt_flow", "moving"}
 
 
-@pytest.mark.parametrize("damage", ["delete", "truncate"])
+@pytest.mark.parametrize("damage", ["delete", pytest.param("truncate", marks=pytest.mark.slow)])
 def test_each_lost_or_short_chunk_is_named(tiny_cache: Path, tmp_path: Path, damage: str) -> None:  # noqa: F811
     files = _listed_files(tiny_cache)
     assert len(files) >= 22  # 11 arrays: a chunk file and a zarr.json each
@@ -53,6 +53,7 @@ def test_each_lost_or_short_chunk_is_named(tiny_cache: Path, tmp_path: Path, dam
         shutil.rmtree(cache)
 
 
+@pytest.mark.slow
 def test_verify_cli_and_training_refuse_a_lost_chunk(tiny_cache: Path, tmp_path: Path) -> None:  # noqa: F811
     for rel in ("T/c/0/0/0", "gt_flow/c/0/0"):
         cache = tmp_path / rel.split("/")[0] / "cache"

@@ -42,7 +42,7 @@ def _one_line(proc: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_stage_one_disk_full_then_resume(synth_root: Path, tmp_path: Path, workers: int) -> None:
     out = tmp_path / "cache"
     args = ["--root", synth_root, "--depth", "gt", "--pose", "gt", "--block_size", "4", "--workers", workers,

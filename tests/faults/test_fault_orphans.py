@@ -10,10 +10,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from _faults import REPO
 
 from pipeline.cache import verify
 from pipeline.cache.manifest import find_tmp
+
+pytestmark = pytest.mark.slow
 
 
 def _children() -> dict[int, list[int]]:
@@ -57,8 +60,6 @@ def _stage_one(synth_root: Path, out: Path) -> list[str]:
 
 
 def test_killed_parent_leaves_no_worker_and_the_rerun_completes(synth_root: Path, tmp_path: Path) -> None:
-    import pytest
-
     if not Path("/proc/self/stat").exists():
         pytest.skip("needs /proc to list the run's processes")
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
