@@ -67,3 +67,26 @@ def test_stage_one_refuses(synth_root: Path, tmp_path: Path) -> None:
                                 "--progress", "false"])
     assert_one_error_line(proc, str(evil))
     assert not marker.exists()
+
+
+def test_checkpoints_of_the_previous_format_still_load(tmp_path: Path) -> None:
+    """Before, the numpy RNG state was saved as numpy's own tuple (an ndarray inside): still readable with
+    weights_only (plain arrays only), and it restores the same numpy stream."""
+    import random
+
+    import torch
+
+    from training.runtime.checkpoints import rng_state, set_rng_state
+
+    np.random.seed(5)
+    old = {"checkpoint_version": 1, "kind": "flow", "step": 3,
+           "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}}
+    expected = np.random.random_sample(4)
+    torch.save(old, tmp_path / "old.pt")
+    set_rng_state(load_checkpoint(tmp_path / "old.pt", kind="flow")["rng"])
+    assert np.array_equal(np.random.random_sample(4), expected)
+    state = rng_state()  # the new format: a tensor and plain numbers
+    assert isinstance(state["numpy"]["keys"], torch.Tensor)
+    after = np.random.random_sample(3)
+    set_rng_state(state)
+    assert np.array_equal(np.random.random_sample(3), after)
