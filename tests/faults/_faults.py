@@ -46,6 +46,5 @@ def assert_one_error_line(proc: subprocess.CompletedProcess, names: str) -> str:
     lines = [x for x in proc.stderr.splitlines() if x.strip()]
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     assert len(lines) == 1, proc.stderr[-2000:]
-    print(lines[0])
     assert lines[0].startswith(f"error: {names}"), lines[0]
     return lines[0]
