@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 DEPTH ?= gt
 OUT ?= cache/demo
 
-.PHONY: demo test bench install clean
+.PHONY: demo test test-all bench install clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -21,7 +21,12 @@ $(STAMP): $(BIN)/python pyproject.toml
 
 install: $(STAMP)
 
+# `make test`: everything but the tests marked slow (a few minutes on 2 cores); `make test-all`: all of it,
+# the fault-injection suite (tests/faults, marker faults) included.
 test: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-all: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 # OMP_WAIT_POLICY=PASSIVE: torch's idle threads sleep instead of spinning, so a busy 2-core machine

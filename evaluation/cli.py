@@ -31,10 +31,10 @@ def _csv(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="monoflow-evaluate", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="monoflow-evaluate", allow_abbrev=False, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     sub = p.add_subparsers(dest="command")
-    r = sub.add_parser("run", help="evaluate checkpoints and baselines on a split")
+    r = sub.add_parser("run", allow_abbrev=False, help="evaluate checkpoints and baselines on a split")
     r.add_argument("--split", required=True, help="test split folder (FlowNet3D npz, HPLFlowNet, OpenSceneFlow h5)")
     r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
@@ -72,12 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-warmup", action="store_true",
                    help="time the first call too (default: one untimed warm-up call per method)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
-    s = sub.add_parser("score", help="recompute metrics from a predictions file")
+    s = sub.add_parser("score", allow_abbrev=False, help="recompute metrics from a predictions file")
     s.add_argument("predictions", nargs="+", help="predictions-*.h5 files written by run --save-predictions")
-    c = sub.add_parser("curves", help="training curves (loss terms, validation metrics) of a run folder as PNG")
+    c = sub.add_parser("curves", allow_abbrev=False, help="training curves (loss terms, validation metrics) of a run folder as PNG")
     c.add_argument("run_dir", nargs="+", help="monoflow-train or monoflow-train-depth run folder(s) with train.csv")
     c.add_argument("--out", default="", help="PNG path (one run folder only); default <run_dir>/curves.png")
-    a = sub.add_parser("ablations", help="train and evaluate the paper's Table II / III variants")
+    a = sub.add_parser("ablations", allow_abbrev=False, help="train and evaluate the paper's Table II / III variants")
     from evaluation.ablations import add_arguments
 
     add_arguments(a)

@@ -71,7 +71,7 @@ class NetMethod:
         import torch
 
         from training.model.halflownet import HALFlowConfig, HALFlowNet
-        from training.runtime.checkpoints import load_checkpoint
+        from training.runtime.checkpoints import load_checkpoint, nonfinite_entries
         from training.runtime.device import resolve_device
 
         path = Path(checkpoint)
@@ -84,6 +84,10 @@ class NetMethod:
             raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
         except ConfigError as exc:
             raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
+        bad = nonfinite_entries(state) if isinstance(state, dict) else []
+        if bad:
+            raise InputError(path, f"non-finite weights (NaN or inf) in {', '.join(bad[:4])}"
+                                   + (f" and {len(bad) - 4} more" if len(bad) > 4 else ""))
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)
         self.net = HALFlowNet(self.config)

@@ -282,10 +282,13 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
     seconds: dict[str, float] = {m.name: 0.0 for m in methods}
     calls = 0
     warm = not cfg.warmup
+    few: list[str] = []  # scenes with fewer distinct frame-1 points than are scored
     for seed in cfg.seeds:
         scenes: dict[str, list[dict[str, Any]]] = {m.name: [] for m in methods}
         for sample in tqdm(split, desc=f"seed {seed}", disable=not progress, dynamic_ncols=True):
             scene = prepare_scene(sample, cfg, seed)
+            if seed == cfg.seeds[0] and cfg.protocol == "paper" and sample.n1 < cfg.n_score:
+                few.append(f"{sample.name} ({sample.n1})")
             if not warm:
                 for m in methods:
                     predict(m, scene)
@@ -302,6 +305,12 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
                 if on_prediction is not None and seed == cfg.seeds[0]:
                     on_prediction(m.name, ScenePrediction(name=sample.name, points=scene.points, pred_flow=pred,
                                                           gt_flow=scene.gt, moving=scene.moving, method=m.name))
+        if few and seed == cfg.seeds[0]:
+            import sys
+
+            shown = ", ".join(few[:5]) + (f" and {len(few) - 5} more" if len(few) > 5 else "")
+            print(f"note: {len(few)} scene(s) have fewer frame-1 points than the {cfg.n_score} scored; their "
+                  f"scores count repeated points: {shown}", file=sys.stderr)
         for name, rows in scenes.items():
             per_seed[name].append(rows)
     results = []

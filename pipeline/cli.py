@@ -27,6 +27,7 @@ def _run_parser() -> argparse.ArgumentParser:
     from pipeline.preprocess import PreprocessConfig
 
     p = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="monoflow-preprocess run",
         description="Stage one: depth, pose, scale, filters -> zarr cache (cache/<dataset>/<config-hash>/).",
     )
@@ -37,16 +38,17 @@ def _run_parser() -> argparse.ArgumentParser:
 
 def _top_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="monoflow-preprocess",
         description="Stage one of monoflow: monocular frames -> filtered coloured point clouds + static flow (cache).",
         epilog="'run' is the default: `monoflow-preprocess --root DATA ...` runs stage one. "
         "See `monoflow-preprocess run --help` for its options.",
     )
     sub = p.add_subparsers(dest="command", metavar="{run,merge,verify}")
-    sub.add_parser("run", help="run stage one (default)", add_help=False)
-    m = sub.add_parser("merge", help="write a cache's manifest from its finished blocks (after sharded runs)")
+    sub.add_parser("run", allow_abbrev=False, help="run stage one (default)", add_help=False)
+    m = sub.add_parser("merge", allow_abbrev=False, help="write a cache's manifest from its finished blocks (after sharded runs)")
     m.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
-    v = sub.add_parser("verify", help="decode and check every block of a finished cache")
+    v = sub.add_parser("verify", allow_abbrev=False, help="decode and check every block of a finished cache")
     v.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
     return p
 

@@ -33,7 +33,8 @@ class ConfigError(MonoflowError):
 
 
 def run_cli(main_body, argv=None) -> int:
-    """Run a CLI body, turning :class:`MonoflowError` into ``error: ...`` on stderr and exit code 2."""
+    """Run a CLI body, turning :class:`MonoflowError` into ``error: ...`` on stderr and exit code 2; an
+    ``OSError`` that escaped (disk full, permission denied) likewise, as ``error: <file>: <reason>``."""
     import sys
 
     try:
@@ -44,4 +45,9 @@ def run_cli(main_body, argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # disk full, permissions, a vanished folder: the file and the system's reason
+        where = exc.filename if exc.filename is not None else "?"
+        reason = exc.strerror or " ".join(str(exc).split())
+        print(f"error: {where}: {reason}", file=sys.stderr)
+        return 2
     return int(rc or 0)

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.errors import ConfigError
+
 
 #: The order in which :mod:`pipeline.pairs` applies the filters (and names them in its stats).
 FILTER_NAMES = ("ground", "far", "lidar", "occlusion")
@@ -59,6 +61,25 @@ class FilterConfig:
     occlusion_threshold: float = field(
         default=0.5, metadata={"help": "remove where |D_proj - D_next| / (D_proj + D_next) >= this"}
     )
+
+    def check(self) -> "FilterConfig":
+        """Raise ConfigError for thresholds that would silently drop every point (or are not numbers)."""
+        import math
+
+        values = {f: float(getattr(self, f)) for f in ("ground_max_y", "far_max_z", "lidar_max_elevation_deg",
+                                                       "lidar_min_elevation_deg", "lidar_max_range", "occlusion_threshold")}
+        bad = [f"{k} = {v}" for k, v in values.items() if not math.isfinite(v)]
+        if self.far and not values["far_max_z"] > 0:
+            bad.append(f"far_max_z = {values['far_max_z']} (must be > 0 m: nothing lies nearer)")
+        if self.lidar and not values["lidar_max_range"] > 0:
+            bad.append(f"lidar_max_range = {values['lidar_max_range']} (must be > 0 m)")
+        if self.lidar and not values["lidar_min_elevation_deg"] < values["lidar_max_elevation_deg"]:
+            bad.append("lidar_min_elevation_deg must be < lidar_max_elevation_deg")
+        if self.occlusion and not values["occlusion_threshold"] > 0:
+            bad.append(f"occlusion_threshold = {values['occlusion_threshold']} (must be > 0)")
+        if bad:
+            raise ConfigError(f"filters: {'; '.join(bad)}")
+        return self
 
     def enabled(self) -> tuple[str, ...]:
         """Names of the switched-on filters, in application order."""

@@ -112,6 +112,7 @@ class PreprocessConfig:
             raise ConfigError("block_size, workers and batch_size must be >= 1")
         self.working_size()
         self.shard_spec()
+        self.filters.check()
         for kind in ("depth", "pose"):
             path = getattr(self, f"{kind}_checkpoint")
             if getattr(self, kind) != "net":
@@ -234,6 +235,8 @@ def open_sequences(config: PreprocessConfig):
                              f"but {len(gaps)} of them are absent")
         if need_poses and not seq.has_poses:
             raise InputError(seq.poses_path, "poses file not found (pose source 'gt' needs the dataset's poses)")
+        if config.sequences and len(seq.frames) < 2:  # asked for by name: refuse rather than drop it silently
+            raise InputError(seq.image_dir, f"sequence {name} has {len(seq.frames)} frame(s); a frame pair needs 2")
         out[seq.sequence] = seq
     return out
 
@@ -510,10 +513,13 @@ def process_blocks(processor: BlockProcessor, writer, plans: list[BlockPlan],
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_init(config_dict: dict[str, Any], root: str, cache_cfg: dict, source: dict, threads: int) -> None:
+def _worker_init(config_dict: dict[str, Any], root: str, cache_cfg: dict, source: dict, threads: int,
+                 parent_pid: int) -> None:
     from pipeline.cache.writer import CacheWriter
+    from pipeline.lifeline import die_with_parent
     from pipeline.options import config_from_dict
 
+    die_with_parent(parent_pid)  # a killed stage one leaves no worker behind
     try:
         config = config_from_dict(PreprocessConfig, config_dict)
         if config.depth == "net" or config.pose == "net":
@@ -785,7 +791,7 @@ def _run_parallel(config, root, cache_cfg, source, todo, done) -> None:
         results.append(res)
         done_outer(res)
 
-    args = (dataclasses.asdict(config), str(root), cache_cfg, source, threads)
+    args = (dataclasses.asdict(config), str(root), cache_cfg, source, threads, os.getpid())
     error: MonoflowError | None = None
     with ProcessPoolExecutor(config.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
                              initargs=args) as pool:

@@ -18,6 +18,7 @@ never blended across object edges.
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -311,7 +312,7 @@ def read_gt_flow(seq: OdometrySequence, i: int, hw: tuple[int, int], visible_nex
             arrays = {k: np.asarray(npz[k]) for k in keys}
     except KeyError as exc:
         raise InputError(path, f"missing array {exc.args[0]!r}") from None
-    except (OSError, ValueError, EOFError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # a truncated file is a BadZipFile
         raise InputError(path, f"not a readable .npz ({type(exc).__name__}: {exc})") from None
     H0, W0 = seq.image_shape
     if arrays["flow"].shape != (H0, W0, 3):

@@ -114,7 +114,7 @@ def test_tables_on_a_tiny_budget_and_reuse(world: Path, tmp_path: Path, capsys) 
         for key in ("ground", "far", "lidar", "occlusion"):
             assert manifest["filters"][key] == v["filters"].get(key, True), (v["name"], key)
         assert manifest["sequences"] == ["00"]
-        assert torch.load(Path(v["run"]) / "latest.pt", weights_only=False)["step"] == 2
+        assert torch.load(Path(v["run"]) / "latest.pt", weights_only=True)["step"] == 2
     assert len({v["cache"] for v in iii["variants"]}) == 3
     assert not any(v["reused_checkpoint"] for v in ii["variants"])
 

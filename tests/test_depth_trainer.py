@@ -140,6 +140,7 @@ def world16(tmp_path_factory) -> Path:
     return depth_world(tmp_path_factory.mktemp("synth16") / "world", frames=16, test_frames=6)
 
 
+@pytest.mark.slow  # about 1–2 min on 2 cores: `make test-all`
 def test_short_cpu_training_lowers_depth_and_pose_error(world16: Path, tmp_path: Path):
     """150 CPU steps (tiny preset — batch 2, lr 1e-4, no augmentation — plus the demo preset's antisymmetric
     poses) on sequence 00, scored on the same

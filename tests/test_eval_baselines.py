@@ -104,12 +104,32 @@ def test_zero_and_static_flow_by_hand() -> None:
         static_flow(pts, np.eye(3))
 
 
-def test_kabsch_exact() -> None:
-    rng = np.random.default_rng(3)
+@pytest.mark.parametrize("seed", range(8))
+def test_kabsch_exact(seed: int) -> None:
+    """Exact correspondences: Kabsch returns the transform to rounding. The bound comes from the
+    arithmetic: the rotation of an SVD of the covariance is perturbed by about eps times its condition
+    (largest squared spread over the other two), the translation in proportion to the coordinates; 64 ulps
+    of slack make it machine independent while still 10 orders below the old arccos-limited 1e-6°."""
+    rng = np.random.default_rng(seed)
     src = rng.normal(size=(50, 3))
     dst = src @ YAW30[:3, :3].T + YAW30[:3, 3]
-    rot_err, t_err = transform_error(kabsch(src, dst), YAW30)
-    assert rot_err < 1e-6 and t_err < 1e-9
+    est = kabsch(src, dst)
+    spread = np.linalg.svd(src - src.mean(0), compute_uv=False)
+    kappa = spread[0] ** 2 / (spread[1] ** 2 + spread[2] ** 2)
+    size = 1.0 + np.abs(YAW30[:3, 3]).max() + np.abs(src).max()
+    tol = 64 * np.finfo(np.float64).eps * (1.0 + kappa) * size
+    assert np.abs(est - YAW30).max() <= tol
+    rot_err, t_err = transform_error(est, YAW30)
+    assert np.radians(rot_err) <= tol and t_err <= tol
+
+
+def test_transform_error_angle_is_exact_near_zero_and_at_large_angles() -> None:
+    for deg in (1e-9, 1e-3, 30.0, 179.0):
+        a = np.radians(deg)
+        rot = np.eye(4)
+        rot[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        got, trans = transform_error(rot, np.eye(4))
+        assert abs(got - deg) <= 8 * np.finfo(np.float64).eps * max(deg, 1.0) and trans == 0.0
 
 
 # ------------------------------------------------------------------------------------------------

@@ -303,7 +303,7 @@ def test_pose_checkpoint_given_to_depth_loader_is_rejected(tmp_path, pose18):
 
 @pytest.mark.parametrize(
     "content, problem",
-    [(b"this is not a checkpoint", "not a readable torch checkpoint"), (b"", "not a readable torch checkpoint")],
+    [(b"this is not a checkpoint", "not a readable checkpoint"), (b"", "not a readable checkpoint")],
 )
 def test_corrupt_file_is_input_error(tmp_path, content, problem):
     path = tmp_path / "broken.pth"

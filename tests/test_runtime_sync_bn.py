@@ -1,8 +1,15 @@
-"""GlobalBatchNorm: two gloo processes with half a batch each equal one process with the whole batch."""
+"""GlobalBatchNorm: two gloo processes with half a batch each equal one process with the whole batch.
+
+The two-process test cannot hang and tears down cleanly: the process group meets in a file store (no port
+to race for), every collective and wait has a timeout, both ranks pass a barrier before the group is
+destroyed (a rank tearing down while the other still talks aborted with "terminate called without an
+active exception"), and the workers are killed if they outlive the test.
+"""
 
 from __future__ import annotations
 
-import socket
+import datetime
+import queue as queue_module
 
 import numpy as np
 import pytest
@@ -12,10 +19,7 @@ from torch import nn
 from training.runtime.sync_bn import GlobalBatchNorm, convert_batchnorm
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+WAIT_S = 120  # generous on a loaded 2-core machine; the test takes a few seconds
 
 
 def _net() -> nn.Module:
@@ -34,15 +38,13 @@ def _loss(net: nn.Module, x: torch.Tensor, target: torch.Tensor) -> torch.Tensor
     return ((net(x) - target) ** 2).mean() + (net(0.5 * x) ** 2).mean()
 
 
-def _worker(rank: int, port: int, queue) -> None:
-    import os
-
+def _worker(rank: int, store_file: str, queue) -> None:
     import torch.distributed as dist
     from torch.nn.parallel import DistributedDataParallel as DDP
 
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
-    dist.init_process_group("gloo", rank=rank, world_size=2)
+    dist.init_process_group("gloo", init_method=f"file://{store_file}", rank=rank, world_size=2,
+                            timeout=datetime.timedelta(seconds=WAIT_S))
     try:
         net = convert_batchnorm(_net(), torch.device("cpu"))
         ddp = DDP(net)
@@ -52,6 +54,7 @@ def _worker(rank: int, port: int, queue) -> None:
         # numpy, not tensors: torch's queue would pass tensors as shared memory this process frees on exit
         queue.put((rank, {k: p.grad.numpy().copy() for k, p in net.named_parameters()},
                    bn.running_mean.numpy().copy(), bn.running_var.numpy().copy(), type(bn).__name__))
+        dist.barrier()  # neither rank tears down while the other may still be in a collective
     finally:
         dist.destroy_process_group()
 
@@ -76,18 +79,27 @@ def test_single_process_is_plain_batch_norm():
     assert torch.equal(plain[1].running_var, conv[1].running_var)
 
 
-def test_two_processes_match_one_process_with_the_whole_batch():
+def test_two_processes_match_one_process_with_the_whole_batch(tmp_path):
     torch.set_num_threads(1)
     ctx = torch.multiprocessing.get_context("spawn")
-    queue = ctx.SimpleQueue()
-    port = _free_port()
-    procs = [ctx.Process(target=_worker, args=(r, port, queue)) for r in range(2)]
-    for p in procs:
-        p.start()
-    results = sorted(queue.get() for _ in procs)
-    for p in procs:
-        p.join(timeout=60)
-        assert p.exitcode == 0
+    queue = ctx.Queue()
+    procs = [ctx.Process(target=_worker, args=(r, str(tmp_path / "store"), queue), daemon=True) for r in range(2)]
+    try:
+        for p in procs:
+            p.start()
+        try:
+            results = sorted(queue.get(timeout=WAIT_S) for _ in procs)
+        except queue_module.Empty:
+            pytest.fail(f"no result within {WAIT_S} s; worker exit codes {[p.exitcode for p in procs]}")
+        for p in procs:
+            p.join(timeout=WAIT_S)
+        assert [p.exitcode for p in procs] == [0, 0]
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+                p.join(timeout=10)
+        queue.close()
     net = _net()
     x, target = _data()
     _loss(net, x.reshape(-1, 4), target.reshape(-1, 2)).backward()

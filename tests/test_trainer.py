@@ -125,7 +125,7 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_cache, tmp_path, mon
     msg = str(err.value)
     assert "non-finite loss at step 7" in msg and "l2/chamfer" in msg and "latest.pt" in msg
     assert "\n" not in msg
-    ckpt = torch.load(tmp_path / "latest.pt", weights_only=False)
+    ckpt = torch.load(tmp_path / "latest.pt", weights_only=True)
     assert ckpt["step"] == 5
     assert all(torch.isfinite(v).all() for v in ckpt["model"].values() if v.is_floating_point())
     assert trainer.step == 6  # six good steps; the seventh never reached the optimiser

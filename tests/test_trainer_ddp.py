@@ -56,8 +56,8 @@ def test_two_process_gloo_run_matches_one_process(tiny_cache, tmp_path):  # noqa
         assert float(r2[k]) == pytest.approx(float(r1[k]), rel=2e-3 if "depth" in k else 1e-4, abs=1e-6), k
     assert float(r2["grad_norm"]) == pytest.approx(float(r1["grad_norm"]), rel=0.05)
 
-    a = torch.load(tmp_path / "single" / "latest.pt", weights_only=False)["model"]
-    b = torch.load(tmp_path / "ddp" / "latest.pt", weights_only=False)["model"]
+    a = torch.load(tmp_path / "single" / "latest.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "ddp" / "latest.pt", weights_only=True)["model"]
     assert a.keys() == b.keys()  # plain BatchNorm keys: a DDP checkpoint loads into a plain net
     stats = [k for k in a if "running" in k]
     for k in stats:  # global-batch statistics: not the per-process ones

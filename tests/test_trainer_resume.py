@@ -49,7 +49,7 @@ def _kill_after_first_checkpoint(cfg) -> int:
             proc.kill()
         proc.stderr.close()
     assert proc.returncode == -signal.SIGKILL
-    return int(torch.load(ckpt, weights_only=False)["step"])
+    return int(torch.load(ckpt, weights_only=True)["step"])
 
 
 def test_resume_after_sigkill_reaches_the_uninterrupted_weights(tiny_cache, tmp_path):  # noqa: F811

@@ -33,7 +33,7 @@ def _describe(p: argparse.ArgumentParser) -> None:
 
 
 def _new_parser() -> argparse.ArgumentParser:
-    return argparse.ArgumentParser(prog="monoflow-train", description=__doc__.split("\n\n")[0],
+    return argparse.ArgumentParser(prog="monoflow-train", allow_abbrev=False, description=__doc__.split("\n\n")[0],
                                    formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
 
 

@@ -21,10 +21,15 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, MonoflowError
+
+
+class NonFiniteError(MonoflowError):
+    """NaN or inf coordinates given to the kNN (scipy's KD-tree would fail with a traceback)."""
 
 KnnBackend = Literal["auto", "kdtree", "torch"]
 BACKENDS: tuple[str, ...] = ("auto", "kdtree", "torch")
@@ -96,6 +101,9 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
 
     q = query.detach().to("cpu", torch.float64).numpy()
     r = ref.detach().to("cpu", torch.float64).numpy()
+    if not (np.isfinite(q).all() and np.isfinite(r).all()):
+        raise NonFiniteError("knn: non-finite point coordinates (NaN or inf) reached the neighbour search: the net "
+                             "diverged (lower --optim.lr?) or its weights or inputs are not finite")
     B, M = q.shape[:2]
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)

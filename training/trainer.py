@@ -143,6 +143,17 @@ def check_config(cfg: TrainConfig) -> None:
         raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1 and lr > 0, got {cfg.optim}")
     if cfg.threads < 0 or cfg.data.workers < 0:
         raise ConfigError(f"threads and data.workers must be >= 0, got {cfg.threads} and {cfg.data.workers}")
+    if cfg.data.n_points != cfg.model.n_points:
+        raise ConfigError(f"data.n_points {cfg.data.n_points} != model.n_points {cfg.model.n_points}: the net is "
+                          "built (and evaluated) for model.n_points points per cloud; set both")
+    sources = (cfg.model.n_points, *cfg.model.level_points)  # level l groups neighbours among these points
+    over = [f"level {i}: {k} > {n}" for i, (k, n) in enumerate(zip(cfg.model.level_k, sources)) if k > n]
+    if over:
+        raise ConfigError(f"model.level_k larger than the points it picks neighbours from ({'; '.join(over)})")
+    if not (cfg.epochs > 0 or cfg.steps >= 1) or cfg.epochs < 0:
+        raise ConfigError(f"steps must be >= 1 (or epochs > 0), got steps {cfg.steps}, epochs {cfg.epochs}")
+    if not 0.0 <= cfg.data.val_fraction < 1.0:
+        raise ConfigError(f"data.val_fraction must be in [0, 1), got {cfg.data.val_fraction}")
 
 
 class Trainer:
@@ -251,8 +262,9 @@ class Trainer:
         if self.dist.enabled:  # every rank must stop together, or the others hang in the next collective
             finite = distributed.all_reduce_mean({"finite": float(finite)}, self.dist)["finite"] == 1.0
         if not finite:
-            raise TrainingDiverged(f"non-finite {what} at step {self.step + 1} ({detail}); training stopped, "
-                                   f"last good checkpoint kept at {self.run_dir / 'latest.pt'}")
+            latest = self.run_dir / "latest.pt"
+            kept = f"last good checkpoint kept at {latest}" if latest.is_file() else "no checkpoint written yet"
+            raise TrainingDiverged(f"non-finite {what} at step {self.step + 1} ({detail}); training stopped, {kept}")
 
     def _check_batch(self, batch: FlowBatch) -> None:
         """Non-finite points or features in the cache stop the run naming the pairs (the kNN would fail

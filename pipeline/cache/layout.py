@@ -26,7 +26,7 @@ from pipeline.errors import ConfigError
 from pipeline.jsonio import fsync_dir, host_name, tmp_suffix, write_json_atomic  # noqa: F401
 from pipeline.runinfo import git_revision
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: blocks list their chunk files and sizes (integrity.py)
 FORMAT_NAME = "monoflow-stage-one-cache"
 HEADER_NAME = "cache.json"
 MANIFEST_NAME = "manifest.json"

@@ -32,6 +32,7 @@ from pipeline.cache.layout import (
     parse_tmp_name,
     write_json_atomic,
 )
+from pipeline.cache.integrity import CHUNK_FILES_ATTR, file_problems, read_block_attrs
 from pipeline.errors import InputError
 
 ExpectedBlocks = Mapping[str, int] | Iterable[tuple[str, int]]
@@ -133,6 +134,13 @@ def inspect_block(root: Path, sequence: str, block_index: int, config_hash: str 
     path = block_dir(root, sequence, block_index)
     if not (path / "zarr.json").is_file():
         raise InputError(path, "block missing")
+    head = read_block_attrs(path)  # schema and chunk files first: a lost chunk would otherwise read as zeros
+    if head.get("format") != FORMAT_NAME or head.get("schema_version") != SCHEMA_VERSION:
+        raise InputError(path, f"block format/schema {head.get('format')!r}/{head.get('schema_version')!r}, this "
+                               f"code reads {FORMAT_NAME!r}/{SCHEMA_VERSION}; rebuild the cache")
+    lost = file_problems(path, head.get(CHUNK_FILES_ATTR))
+    if lost:
+        raise InputError(path, "; ".join(lost))
     try:
         g = open_block_group(path)
         a = dict(g.attrs)
@@ -148,8 +156,6 @@ def inspect_block(root: Path, sequence: str, block_index: int, config_hash: str 
     except Exception as exc:  # zarr/codec errors on damaged files
         raise InputError(path, f"unreadable block ({type(exc).__name__}: {exc})") from None
     problems = []
-    if a.get("format") != FORMAT_NAME or a.get("schema_version") != SCHEMA_VERSION:
-        problems.append(f"format/schema {a.get('format')!r}/{a.get('schema_version')!r}")
     if a.get("sequence") != sequence or a.get("block_index") != block_index:
         problems.append(f"attributes name block {a.get('sequence')!r}/{a.get('block_index')!r}")
     if config_hash is not None and a.get("config_hash") != config_hash:

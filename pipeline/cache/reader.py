@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from pipeline.cache.encode import gt_flow_from_ulp_offsets
-from pipeline.cache.layout import MANIFEST_NAME
+from pipeline.cache.integrity import check_block_files, read_block_attrs
+from pipeline.cache.layout import FORMAT_NAME, MANIFEST_NAME, SCHEMA_VERSION
 from pipeline.cache.manifest import read_manifest
 from pipeline.cache.points import dequantize_depth, pixel_uv, points_at_pixels, static_flow_of
 from pipeline.errors import InputError
@@ -63,6 +64,15 @@ class PairSample:
     index: int = -1
 
 
+def check_block_attrs(path: Path, attrs: dict[str, Any]) -> None:
+    """The block's own format and schema version are this code's, and every chunk file it lists is there
+    with its size (a missing chunk would read back as zeros); InputError naming the block otherwise."""
+    if attrs.get("format") != FORMAT_NAME or attrs.get("schema_version") != SCHEMA_VERSION:
+        raise InputError(path, f"block format/schema {attrs.get('format')!r}/{attrs.get('schema_version')!r}, "
+                               f"this code reads {FORMAT_NAME!r}/{SCHEMA_VERSION}; rebuild the cache")
+    check_block_files(path, attrs)
+
+
 class _OpenBlock:
     """A block's zarr arrays plus its small per-pair arrays, loaded once when the block is first used."""
 
@@ -71,6 +81,7 @@ class _OpenBlock:
 
         g = open_block_group(path)
         attrs = dict(g.attrs)
+        check_block_attrs(path, attrs)
         self.arrays = {name: g[name] for name in g.array_keys()}
         self.K64 = self.arrays["K"][...]
         self.T64 = self.arrays["T"][...]
@@ -92,10 +103,12 @@ class CacheReader:
     into spawned workers) opens its own stores in each worker. At most ``max_open_blocks`` blocks stay open
     (an open block holds metadata and its small per-pair arrays, a few kB, and no file descriptors).
     Raises InputError (naming the file) for a missing or corrupt manifest, a schema-version mismatch, or a
-    block listed in the manifest that is missing or unreadable.
+    block listed in the manifest that is missing, unreadable, of another schema, or lacking a chunk file (or
+    holding a short one): all blocks are checked when the reader is made (``check_files``), and each again
+    when it is opened.
     """
 
-    def __init__(self, root: str | os.PathLike[str], max_open_blocks: int = 4096) -> None:
+    def __init__(self, root: str | os.PathLike[str], max_open_blocks: int = 4096, check_files: bool = True) -> None:
         self.root = Path(root)
         self.manifest: dict[str, Any] = read_manifest(self.root)
         m = self.manifest
@@ -121,6 +134,15 @@ class CacheReader:
         self._max_open = max(1, int(max_open_blocks))
         self._pid = -1
         self._open: OrderedDict[int, _OpenBlock] = OrderedDict()
+        if check_files:
+            self.check_files()
+
+    def check_files(self) -> None:
+        """Every listed block is present, of this schema, and has every chunk file it lists, with its size
+        (one small metadata read and a few ``stat`` calls per block): a damaged cache is refused before
+        training starts instead of reading lost chunks as zeros. InputError naming the first bad block."""
+        for path in self._paths:
+            check_block_attrs(path, read_block_attrs(path))
 
     # ------------------------------------------------------------------ container protocol
 

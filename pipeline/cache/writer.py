@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cache.encode import encode_block
+from pipeline.cache.integrity import CHUNK_FILES_ATTR, list_block_files
 from pipeline.cache.layout import (
     BLOCKS_DIR,
     HEADER_NAME,
@@ -28,7 +29,7 @@ from pipeline.cache.layout import (
 )
 from pipeline.cache.manifest import ExpectedBlocks, make_header, merge, read_header, remove_stale_tmp
 from pipeline.cache.records import BlockRecord
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputError
 
 
 class CacheWriter:
@@ -80,6 +81,8 @@ class CacheWriter:
             group = block_format.create_group(tmp)
             group.attrs.update(encoded.attrs)
             block_format.write_arrays(group, encoded.arrays)
+            # every chunk file and its size, so that a lost or truncated chunk is seen (integrity.py)
+            group.attrs[CHUNK_FILES_ATTR] = list_block_files(tmp)
             block_format.consolidate(tmp)
             _fsync_tree(tmp)
             try:
@@ -90,6 +93,9 @@ class CacheWriter:
                     return False
                 raise
             fsync_dir(final.parent)
+        except OSError as exc:  # disk full, quota, permissions: nothing of the block stays, one line
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise InputError(final, f"cannot write block ({exc.strerror or exc}); nothing of it was kept") from None
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -108,6 +108,10 @@ class OdometrySequence:
         self.calib: OdometryCalib = read_odometry_calib(self.calib_path)
         if self.p_key not in self.calib.P:
             raise InputError(self.calib_path, f"missing key {self.p_key!r} (needed for {camera})")
+        K = self.calib.P[self.p_key][:, :3]
+        if not (np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0 and abs(np.linalg.det(K)) > 0):
+            raise InputError(self.calib_path, f"{self.p_key}: not a camera projection (its left 3x3 needs positive "
+                                              f"focal lengths and must be invertible), got {K.ravel().tolist()}")
 
         self.poses_path = self.root / "poses" / f"{self.sequence}.txt"
         self._poses_all = read_poses(self.poses_path) if self.poses_path.is_file() else None

@@ -28,14 +28,12 @@ _BOTTLENECK_KEY = re.compile(r"^encoder\.encoder\.layer\d\.\d+\.conv3\.weight$")
 
 def read_state_dict(path: str | os.PathLike[str]) -> dict[str, Tensor]:
     """The state dict stored in ``path`` (CPU tensors, ``module.`` prefixes stripped)."""
+    from pipeline.safeload import load_weights_only
+
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "no such checkpoint file")
-    try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types (UnpicklingError, RuntimeError, EOFError, …)
-        first = (str(exc).strip().splitlines() or [""])[0][:160]
-        raise InputError(path, f"not a readable torch checkpoint ({type(exc).__name__}: {first})") from None
+    obj = load_weights_only(path)
     if isinstance(obj, Mapping) and "state_dict" in obj:
         obj = obj["state_dict"]
     if not isinstance(obj, Mapping) or not obj:

@@ -13,6 +13,7 @@ from pipeline.synth.config import SynthConfig
 def build_parser() -> argparse.ArgumentParser:
     d = SynthConfig()
     p = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="monoflow-synth",
         description="Render a seeded synthetic driving world as a KITTI-odometry folder with ground-truth depth, "
         "3D flow, LiDAR scans and a scene-flow test split.",

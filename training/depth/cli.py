@@ -28,7 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     from pipeline.options import add_dataclass_args
     from training.depth.config import DepthTrainConfig
 
-    p = argparse.ArgumentParser(prog="monoflow-train-depth", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="monoflow-train-depth", allow_abbrev=False, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("--config", help="TOML file with options (flags override it)")
     p.add_argument("--preset", choices=PRESETS, help="start from a preset: demo (make demo DEPTH=learned) or tiny")
