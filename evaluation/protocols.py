@@ -287,7 +287,7 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
         scenes: dict[str, list[dict[str, Any]]] = {m.name: [] for m in methods}
         for sample in tqdm(split, desc=f"seed {seed}", disable=not progress, dynamic_ncols=True):
             scene = prepare_scene(sample, cfg, seed)
-            if seed == cfg.seeds[0] and cfg.protocol == "paper" and sample.n1 < cfg.n_score:
+            if seed == cfg.seeds[0] and cfg.protocol in ("fps", "released", "paper") and sample.n1 < cfg.n_score:
                 few.append(f"{sample.name} ({sample.n1})")
             if not warm:
                 for m in methods:

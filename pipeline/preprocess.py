@@ -753,9 +753,8 @@ def run_preprocess(
 
 
 def _shout(message: str) -> None:
-    """A loud warning on stderr (stage one goes on; ``--scale.refuse_non_metric true`` stops instead)."""
-    bar = "!" * 78
-    print(f"{bar}\nWARNING: {message}\n{bar}", file=sys.stderr)
+    """A loud warning on stderr, one line (stage one goes on; ``--scale.refuse_non_metric true`` stops instead)."""
+    print(f"WARNING: {message}", file=sys.stderr)
 
 
 def mean_points(stats: list[dict[str, int]], filters: FilterConfig) -> dict[str, float]:

@@ -42,8 +42,9 @@ def run_cli(module: str, args: list[str], timeout: float = 240) -> subprocess.Co
 
 
 def assert_one_error_line(proc: subprocess.CompletedProcess, names: str) -> str:
-    """Exit code 2 and exactly one stderr line ``error: <names>: ...``; returns that line."""
-    lines = [x for x in proc.stderr.splitlines() if x.strip()]
+    """Exit code 2 and exactly one stderr line ``error: <names>: ...`` (beside ``WARNING:`` lines about the
+    configuration, which are not errors); returns that line."""
+    lines = [x for x in proc.stderr.splitlines() if x.strip() and not x.startswith("WARNING: ")]
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     assert len(lines) == 1, proc.stderr[-2000:]
     assert lines[0].startswith(f"error: {names}"), lines[0]
