@@ -55,7 +55,7 @@ class AuditConfig:
     val_fraction: float = 0.1
     pairs_max: int = 16
     n_points: int = 2048
-    level_points: tuple[int, ...] = (512, 256, 64, 32)
+    level_points: tuple[int, ...] = (512, 256, 64, 16)  # the demo net's output levels at 2048 points
     noise_m: tuple[float, ...] = (0.05, 0.2)
     rigid_deg: float = 1.0
     rigid_m: float = 0.2
