@@ -1,6 +1,6 @@
 """Axis conventions of the public scene-flow test sets, and their conversion to our camera frame.
 
-Our camera frame (DESIGN §2): x right, y down, z forward, metres.
+Our camera frame (docs/design.md §2): x right, y down, z forward, metres.
 
 * LiDAR-like axes (FlowNet3D ``kitti_rm_ground``; OpenSceneFlow / Argoverse-2 ego frame): x forward,
   y left, z up. Camera = ``(−y, −z, x)``: ``cam_x = −y``, ``cam_y = −z``, ``cam_z = x``.

@@ -1,4 +1,4 @@
-"""Scene-flow metrics, the community's definitions (DESIGN §6).
+"""Scene-flow metrics, the community's definitions (docs/design.md §6).
 
 Per point, with predicted flow ``f`` and ground truth ``g`` (metres):
 

@@ -39,7 +39,7 @@ def markdown_table(rows: Sequence[dict[str, Any]], title: str | None = None) -> 
 
 
 def provenance() -> dict[str, Any]:
-    """Package versions, git revision and command line, saved with every report (DESIGN §1)."""
+    """Package versions, git revision and command line, saved with every report (docs/design.md §1)."""
     import sys
 
     from pipeline.runinfo import git_revision, package_versions

@@ -1,6 +1,6 @@
 """One scene-flow test sample: two point clouds, ground-truth flow, optional colours, motion mask and pose.
 
-Frames and units (DESIGN §2): every array is in the camera frame of its own frame (x right, y down,
+Frames and units (docs/design.md §2): every array is in the camera frame of its own frame (x right, y down,
 z forward), in metres. ``flow[i]`` moves ``pc1[i]`` to where that surface point is at time 2, expressed in
 camera-2 coordinates, so ``pc1 + flow`` lies on the surface sampled by ``pc2``. ``pose`` is
 ``T_{1→2}`` (4×4): ``p2 = R p1 + t``; the static (camera-only) flow is ``(R p1 + t) − p1``.

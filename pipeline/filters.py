@@ -1,4 +1,4 @@
-"""The four point filters of stage one (DESIGN §3.6): ground, sky/far, LiDAR range, occlusion.
+"""The four point filters of stage one (docs/design.md §3.6): ground, sky/far, LiDAR range, occlusion.
 
 Each filter is a *keep* mask over camera-frame points (x right, y down, z forward, metres); thresholds
 are options of :class:`FilterConfig` and every filter can be switched off. The masks are pure functions
@@ -47,7 +47,7 @@ def transform_columns(T: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np
 
 @dataclass
 class FilterConfig:
-    """Switches and thresholds of the four filters (DESIGN §3.6; the paper's values are the defaults)."""
+    """Switches and thresholds of the four filters (docs/design.md §3.6; the paper's values are the defaults)."""
 
     ground: bool = field(default=True, metadata={"help": "remove ground points (y >= ground_max_y)"})
     ground_max_y: float = field(default=1.15, metadata={"help": "metres below the camera centre (y down)"})

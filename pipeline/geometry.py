@@ -1,6 +1,6 @@
 """Camera geometry, batched, for numpy arrays and torch tensors alike.
 
-Conventions (DESIGN §2):
+Conventions (docs/design.md §2):
 
 * Camera frame: x right, y down, z forward, metres.
 * Pixel (u, v): u to the right, v down, origin at the centre of the top-left pixel.

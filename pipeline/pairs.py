@@ -1,4 +1,4 @@
-"""One frame pair (t, t+1) of stage one: back-project, filter, record (DESIGN §3.5–3.7).
+"""One frame pair (t, t+1) of stage one: back-project, filter, record (docs/design.md §3.5–3.7).
 
 Every pixel with valid depth is back-projected with :func:`pipeline.cache.points.points_from_depth` —
 the very call the cache reader makes — so the filters judge exactly the points the cache will hand

@@ -1,4 +1,4 @@
-"""Stage one over whole sequences: blocks of consecutive pairs → the zarr cache (DESIGN §3, §4).
+"""Stage one over whole sequences: blocks of consecutive pairs → the zarr cache (docs/design.md §3, §4).
 
 Every sequence's pairs (t, t+1) are split into blocks of ``block_size`` consecutive pairs; a block is the
 unit of work and of storage. Per block: read and resize its frames, compute each frame's depth **once**

@@ -1,4 +1,4 @@
-"""Metric scale of monocular depth and pose (DESIGN §3.4).
+"""Metric scale of monocular depth and pose (docs/design.md §3.4).
 
 A monocular depth net and pose net agree on a common but unknown scale. The factor ``s`` found here
 multiplies every depth map *and* every translation of the same block, so static flow stays

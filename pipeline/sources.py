@@ -1,4 +1,4 @@
-"""Where stage one's frames, depth maps, poses and ground truth come from (DESIGN §3.1–3.3).
+"""Where stage one's frames, depth maps, poses and ground truth come from (docs/design.md §3.1–3.3).
 
 Depth sources (each returns metric-or-net-scale depth at the working size, (N, H, W) float32, 0 = invalid):
 

@@ -1,4 +1,4 @@
-"""Bytes per pair on disk at the default working size 832×256 (target ≤ 1 MB, DESIGN §3)."""
+"""Bytes per pair on disk at the default working size 832×256 (target ≤ 1 MB, docs/design.md §3)."""
 
 from __future__ import annotations
 

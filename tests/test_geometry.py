@@ -92,7 +92,7 @@ def test_projection_offset_of_colour_camera(shared_data):
             key, vals = line.split(":", 1)
             P[key.strip()] = np.array(vals.split(), dtype=np.float64).reshape(3, 4)
     T02 = g.camera_offset_from_projection(P["P2"])
-    # exact: K^-1 P2[:, 3]; DESIGN's shortcut P2[0,3]/fx ignores P2's small z offset (6 mm here)
+    # exact: K^-1 P2[:, 3]; the common shortcut P2[0,3]/fx ignores P2's small z offset (6 mm here)
     fx, cx, tz = P["P2"][0, 0], P["P2"][0, 2], P["P2"][2, 3]
     assert T02[0, 3] == pytest.approx((P["P2"][0, 3] - cx * tz) / fx, abs=1e-9)
     assert T02[2, 3] == pytest.approx(tz, abs=1e-12)

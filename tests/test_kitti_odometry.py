@@ -97,7 +97,7 @@ def test_colour_subset_frames_index_the_full_pose_file(shared_data: Path, tmp_pa
     tx = (4.688783e01 - 601.8873 * tz) / 707.0912
     np.testing.assert_allclose(seq.T_cam0_to_cam[:3, 3], [tx, ty, tz], rtol=1e-12)
     np.testing.assert_array_equal(seq.T_cam0_to_cam[:3, :3], np.eye(3))
-    assert 0.05 < tx < 0.07  # ≈ P2[0,3] / P2[0,0] (DESIGN §2)
+    assert 0.05 < tx < 0.07  # ≈ P2[0,3] / P2[0,0] (docs/design.md §2)
 
     gt = read_poses(shared_data / POSES_06)
     np.testing.assert_array_equal(seq.poses_cam0, gt[12:15])  # frame id i ↔ line i

@@ -1,7 +1,7 @@
 """The baseline interface and rigid-transform helpers shared by the registration baselines.
 
 A 4×4 transform ``T`` maps frame-1 camera coordinates to frame-2 camera coordinates (``p2 = R p1 + t``,
-DESIGN §2); the rigid flow it implies is ``T(p) − p``.
+docs/design.md §2); the rigid flow it implies is ``T(p) − p``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Pose-only static flow: the flow every point would have if the scene were rigid and only the camera moved.
 
-``sf_s = (R p + t) − p`` with ``T_{1→2} = [R | t]`` mapping camera-1 to camera-2 coordinates (DESIGN §2).
+``sf_s = (R p + t) − p`` with ``T_{1→2} = [R | t]`` mapping camera-1 to camera-2 coordinates (docs/design.md §2).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Depth is stored at KITTI's precision: metres in steps of 1/256 m (uint16, so 0 �
 depth and from the stored depth are identical. Call :func:`canonical_depth` right after scaling, before the
 filters, so that the filters also see exactly what the cache will hold.
 
-Conventions (DESIGN §2): camera frame x right, y down, z forward, metres; pixel (u, v) u right, v down,
+Conventions (docs/design.md §2): camera frame x right, y down, z forward, metres; pixel (u, v) u right, v down,
 origin at the top-left pixel's centre; flat index ``v * W + u``.
 """
 

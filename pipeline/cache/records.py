@@ -1,6 +1,6 @@
 """What stage one hands to the cache writer: one block of consecutive pairs of one sequence.
 
-Units and frames (DESIGN §2): depth is z in metres (camera frame, x right, y down, z forward), after the
+Units and frames (docs/design.md §2): depth is z in metres (camera frame, x right, y down, z forward), after the
 scale factor has been applied; 0 marks an invalid pixel (sky, no LiDAR return). Flat pixel index of pixel
 (u, v) in an image of width W is ``v * W + u``.
 """

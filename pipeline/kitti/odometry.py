@@ -22,7 +22,7 @@ poses file must have exactly N lines; otherwise (a subset) it must have a line f
 
 Frames: ``poses_cam0`` are camera-to-world of cam0 (KITTI's convention, world = cam0 at frame 0);
 ``poses`` are camera-to-world of the chosen camera; ``relative_pose(i, j)`` = ``T_{i→j}`` maps points
-of the chosen camera at position i to the same camera at position j (DESIGN §2).
+of the chosen camera at position i to the same camera at position j (docs/design.md §2).
 """
 
 from __future__ import annotations

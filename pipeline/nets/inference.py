@@ -93,7 +93,7 @@ class DepthPoseRunner:
     def depth(self, images: np.ndarray | Tensor) -> np.ndarray:
         """Depth ``1/disp`` (N, H, W) float32 (metres up to an unknown scale) of uint8 frames (N, H, W, 3).
 
-        H and W must be multiples of 32 (the working size; see DESIGN §3).
+        H and W must be multiples of 32 (the working size; see docs/design.md §3).
         """
         if self.depth_net is None:
             raise ConfigError("this runner has no depth net")

@@ -8,7 +8,7 @@ Convention — verified against SC-SfMLearner's training code: there ``pose = po
 handed to ``inverse_warp2(ref_img, tgt_depth, ref_depth, pose, K)``, which back-projects the *target* depth
 into target-camera points P_tgt, computes ``[R | t] · P_tgt`` and projects that with K to sample the
 *reference* image and depth. So the 6-vector of ``pose_net(a, b)`` is ``T_{a→b}``, mapping camera-a
-coordinates to camera-b coordinates, ``p_b = R p_a + t`` (DESIGN §2's ``T_{1→2}`` is ``pose_net(img1, img2)``).
+coordinates to camera-b coordinates, ``p_b = R p_a + t`` (docs/design.md §2's ``T_{1→2}`` is ``pose_net(img1, img2)``).
 Its camera-to-world pose accumulates as ``Pose_b = Pose_a · inv(T_{a→b})``.
 
 Output vector: ``[tx, ty, tz, rx, ry, rz]`` — translation in the depth net's (unknown) scale, Euler angles

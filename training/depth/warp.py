@@ -5,7 +5,7 @@ metres up to the nets' scale), moved into the reference camera, ``P_r = R P_t + 
 (the pose net's ``pose_net(tgt, ref)``), and projected, ``(u', v') = π(K P_r)``. The reference image and
 the reference depth map are sampled bilinearly at (u', v'); ``computed_depth`` is P_r's z.
 
-Pixel convention (DESIGN §2): pixel centres at integer (u, v), so u ∈ [0, W−1] maps to grid_sample's
+Pixel convention (docs/design.md §2): pixel centres at integer (u, v), so u ∈ [0, W−1] maps to grid_sample's
 [−1, 1] with ``align_corners=True``. (The released code normalises by W−1 but samples with
 ``align_corners=False``, a half-pixel shift; we keep geometry and sampling consistent.)
 """

@@ -1,7 +1,8 @@
 """The paper's four unsupervised losses (eqs. 7–16) and their multi-level weighted sum (eq. 17).
 
 All points are (B, N, 3) tensors in metres; a warped point ``p1 + f`` is in camera-2 coordinates.
-Every loss is a per-point mean (then a batch mean), in m².
+Every loss is a per-point mean (then a batch mean): squared distances in m² (Chamfer, Laplacian, dynamic–static,
+depth consistency with ``depth_norm="l2"``) or distances in metres (depth consistency with the default ``"l1"``).
 """
 
 from training.losses.chamfer import chamfer, nearest_sq_dist

@@ -1,7 +1,7 @@
 """Depth consistency loss (paper §III-B, eqs. 7–10).
 
 A point of frame t moved by a scene flow, ``p̄ = p1 + f``, is expressed in **camera-2** coordinates:
-scene flow includes the ego-motion (static flow ``sf_s = (R p1 + t) − p1``, DESIGN §2), so ``p1 + f``
+scene flow includes the ego-motion (static flow ``sf_s = (R p1 + t) − p1``, docs/design.md §2), so ``p1 + f``
 is where the point is seen from the camera at t+1. If the flow is right, ``p̄`` lies on the surface
 that frame t+1's depth map ``D_{t+1}`` sees:
 
@@ -155,7 +155,8 @@ def depth_consistency(
     averaged over a batch element's valid points, then over the batch elements that have any (the
     paper writes Σ; a mean keeps the level factors α meaningful across levels of 2048 … 64 points).
     ``L_Depth = L_Depth1 + L_Depth2`` with ``p̄ = p1 + f_o`` resp. ``p1 + sf_s + f_d``
-    (:func:`training.losses.total.multi_level_loss` adds them). Scalar in m².
+    (:func:`training.losses.total.multi_level_loss` adds them). Scalar in m² with ``norm="l2"`` (the paper's
+    form), in metres with ``norm="l1"`` (the default of :class:`~training.losses.total.LossWeights`).
 
     ``variant="released"`` (ablation) reproduces what the released code does instead:
 
@@ -173,10 +174,10 @@ def depth_consistency(
     dominate the mean and its gradient (measured on the demo world: median residual 1.4 mm, yet 4 % of
     points over 1 m and a mean squared residual of 6 m²). The released code uses an L1 norm too.
 
-    The residual stays the squared norm in both variants by default, so β keeps its meaning. Not reproduced here
-    (they belong to the trainer's ablations, not to this function): the released code's L1 norm, its
-    use of the depth terms at the finest level only, and its ``L_Depth2`` comparing the re-projected
-    point with ``p1 + f_o`` rather than with ``p1 + sf_s + f_d``.
+    This function's own default is the squared norm (``norm="l2"``); the trainer's default
+    (``LossWeights.depth_norm``) is ``"l1"``. Not reproduced here (they belong to the trainer's ablations, not
+    to this function): the released code's use of the depth terms at the finest level only, and its
+    ``L_Depth2`` comparing the re-projected point with ``p1 + f_o`` rather than with ``p1 + sf_s + f_d``.
     """
     res2, valid = depth_consistency_residuals(points_warped, K, depth2, variant, source_points, eps, edge_tolerance)
     if norm == "l1":  # robust: the residual's length (smoothed at 1 mm so the gradient stays finite at 0)

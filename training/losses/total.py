@@ -109,7 +109,7 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
 
 def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
-    ``laplacian`` (scalars, m²)."""
+    ``laplacian`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``)."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o

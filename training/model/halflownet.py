@@ -1,5 +1,5 @@
 """The scene-flow network: HALFlowNet's design (Wang et al., "Hierarchical Attention Learning of Scene
-Flow in 3D Point Clouds") in plain PyTorch, the net the monocular paper trains (DESIGN.md §5).
+Flow in 3D Point Clouds") in plain PyTorch, the net the monocular paper trains (docs/design.md §5).
 
 Data flow (default sizes; every number comes from :class:`HALFlowConfig`)::
 
