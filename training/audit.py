@@ -170,8 +170,8 @@ def format_rows(rows: list[dict]) -> str:
     terms = [t for t in ("weighted", "depth", "ds", "chamfer", "laplacian") if any(t in r for r in rows)]
     lines = ["| candidate | level | " + " | ".join(terms) + " |", "|---|---|" + "---|" * len(terms)]
     for r in sorted(rows, key=lambda r: (r["level"], r["candidate"])):
-        lines.append(f"| {r['candidate']} | {r['level']} | " + " | ".join(f"{r.get(t, float('nan')):.4f}" for t in terms)
-                     + " |")
+        values = " | ".join(f"{r.get(t, float('nan')):.4f}" for t in terms)
+        lines.append(f"| {r['candidate']} | {r['level']} | {values} |")
     return "\n".join(lines)
 
 
