@@ -239,6 +239,10 @@ def build_config(cls, args: argparse.Namespace, config_file: str | Path | None =
     return _build(cls, values, "", source)
 
 
-def config_from_dict(cls, data: dict[str, Any]):
-    """Rebuild a (nested) dataclass config from its ``dataclasses.asdict`` form."""
-    return _build(cls, _flatten(data), "", "saved config")
+def config_from_dict(cls, data: dict[str, Any], overrides: dict[str, Any] | None = None,
+                     source: str = "saved config"):
+    """Rebuild a (nested) dataclass config from its ``dataclasses.asdict`` form (or any part of it), with
+    ``overrides`` as dotted ``{"section.field": value}`` pairs on top; ``source`` names it in errors."""
+    values = _flatten(data)
+    values.update(overrides or {})
+    return _build(cls, values, "", source)

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from training.data import FlowBatch, PairDataset, collate, pairs_with_gt_flow, split_pairs
-from training.losses.total import LevelInputs, LossWeights, level_alphas, level_terms
+from training.losses.total import LevelInputs, LossWeights, multi_level_loss
 
 
 @dataclass
@@ -93,19 +93,16 @@ def _first_n_levels(n: int, level_points: tuple[int, ...]) -> list[Tensor]:
 
 def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], idx1: list[Tensor],
                  idx2: list[Tensor], weights: LossWeights) -> list[dict[str, float]]:
-    """Per level (finest first): every enabled unweighted term and ``weighted`` (α_k Σ β L), floats."""
+    """Per level (finest first): every enabled unweighted term and ``weighted`` (α_k Σ β L), floats, as
+    :func:`training.losses.total.multi_level_loss` computes and logs them."""
     from training.trainer import gather
 
-    alphas = level_alphas(weights, len(flow_o))
-    beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), weights.beta))
-    rows = []
-    for k, (fo, fd, i1, i2) in enumerate(zip(flow_o, flow_d, idx1, idx2)):
-        lvl = LevelInputs(pc1=gather(batch.pc1, i1), pc2=gather(batch.pc2, i2), flow_o=fo, flow_d=fd,
+    levels = [LevelInputs(pc1=gather(batch.pc1, i1), pc2=gather(batch.pc2, i2), flow_o=fo, flow_d=fd,
                           static_flow=gather(batch.static_flow, i1), K=batch.K, depth2=batch.depth2)
-        terms = level_terms(lvl, weights)
-        weighted = alphas[k] * sum(float(beta[n] * terms[n]) for n in beta if n in terms)
-        rows.append({**{n: float(v) for n, v in terms.items()}, "weighted": weighted})
-    return rows
+              for fo, fd, i1, i2 in zip(flow_o, flow_d, idx1, idx2)]
+    _, logged = multi_level_loss(levels, weights)
+    return [{key.split("/", 1)[1]: v for key, v in logged.items() if key.startswith(f"l{k}/")}
+            for k in range(len(levels))]
 
 
 @torch.no_grad()
@@ -115,10 +112,10 @@ def audit(cfg: AuditConfig) -> list[dict]:
     from training.trainer import gather
 
     reader = CacheReader(cfg.cache)
-    with_gt = sorted(pairs_with_gt_flow(reader))
+    with_gt = pairs_with_gt_flow(reader)
     train, val = split_pairs(reader, cfg.val_fraction)
     pool = {"train": train, "val": val, "all": list(range(len(reader)))}[cfg.subset]
-    pairs = [i for i in pool if i in set(with_gt)]
+    pairs = [i for i in pool if i in with_gt]
     if not pairs:
         raise ValueError(f"{cfg.cache}: no {cfg.subset} pair with ground-truth flow")
     if len(pairs) > cfg.pairs_max:
@@ -126,7 +123,9 @@ def audit(cfg: AuditConfig) -> list[dict]:
     net = None
     level_points = tuple(cfg.level_points)
     if cfg.checkpoint:
-        net = _load_net(cfg.checkpoint)
+        from training.selection import load_flow_net
+
+        net = load_flow_net(cfg.checkpoint)
         level_points = net.config.level_points[:4]
     data = PairDataset(reader, pairs, cfg.n_points, cfg.seed, colour_features=False, fixed_epoch=-1)
     sums: dict[tuple[str, int], dict[str, float]] = {}
@@ -153,17 +152,6 @@ def audit(cfg: AuditConfig) -> list[dict]:
                 for key, v in row.items():
                     acc[key] = acc.get(key, 0.0) + v / len(pairs)
     return [{"candidate": name, "level": k, **vals} for (name, k), vals in sums.items()]
-
-
-def _load_net(path: str):
-    """The net of a ``monoflow-train`` checkpoint, on the CPU, in eval mode."""
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
-    from training.runtime.checkpoints import load_checkpoint
-
-    ckpt = load_checkpoint(path, kind="flow")
-    net = HALFlowNet(HALFlowConfig(**ckpt["config"]["model"]))
-    net.load_state_dict(ckpt["model"])
-    return net.eval()
 
 
 def format_rows(rows: list[dict]) -> str:

@@ -122,14 +122,10 @@ class PairDataset(torch.utils.data.Dataset):
             raise InputError(getattr(self.reader, "root", "cache"), f"pair {i} has an empty cloud "
                              f"({len(s.pc1)} frame-t, {len(s.pc2)} frame-t+1 points)")
         rng = np.random.default_rng([self.seed, self.epoch - _VAL_EPOCH, i])  # validation draws use tag 0
-        a = self.augment
-        if a and (a.get("lidar_rings", 0) > 0 or a.get("density_drop", 0) > 0 or a.get("ground_jitter_m", 0) > 0):
-            keep1, keep2 = augment_masks(rng, s.pc1, s.pc2, **a)
-            k1, k2 = np.flatnonzero(keep1), np.flatnonzero(keep2)
-            c1, c2 = k1[_choose(rng, len(k1), self.n_points)], k2[_choose(rng, len(k2), self.n_points)]
-        else:
-            c1 = _choose(rng, len(s.pc1), self.n_points)
-            c2 = _choose(rng, len(s.pc2), self.n_points)
+        # with every augmentation off the masks keep all points and draw nothing: the same draw as without them
+        keep1, keep2 = augment_masks(rng, s.pc1, s.pc2, **self.augment)
+        k1, k2 = np.flatnonzero(keep1), np.flatnonzero(keep2)
+        c1, c2 = k1[_choose(rng, len(k1), self.n_points)], k2[_choose(rng, len(k2), self.n_points)]
         pc1 = s.pc1[c1].astype(np.float32)
         sf = s.static_flow[c1].astype(np.float32)
         if self.jitter_deg > 0 or self.jitter_m > 0:

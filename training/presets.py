@@ -11,9 +11,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     """The demo's :class:`~training.config.TrainConfig`: a half-width net at 2048 points, batch 4, on
     geometry alone (the LiDAR-like test splits have no colours), with the rigid ego-motion head and the
     camera-to-LiDAR augmentations; ``overrides`` are dotted ``{"model.ego_head": False}`` pairs."""
-    from training.config import level_points_for
     from pipeline.options import config_from_dict
-    from training.config import TrainConfig
+    from training.config import TrainConfig, level_points_for
 
     base: dict[str, Any] = {
         "cache": cache, "run_dir": run_dir, "steps": steps, "seed": seed, "device": "auto",
@@ -24,10 +23,4 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True},
     }
-    for key, value in (overrides or {}).items():
-        node = base
-        *path, leaf = key.split(".")
-        for part in path:
-            node = node.setdefault(part, {})
-        node[leaf] = list(value) if isinstance(value, tuple) else value
-    return config_from_dict(TrainConfig, base)
+    return config_from_dict(TrainConfig, base, overrides, source="demo preset")

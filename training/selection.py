@@ -68,19 +68,25 @@ def scores_from_sums(sums) -> dict[str, float]:
     return out
 
 
+def load_flow_net(checkpoint, device: str = "cpu"):
+    """The net of a ``monoflow-train`` checkpoint (architecture from its ``config.model``), in eval mode."""
+    from training.model.halflownet import HALFlowConfig, HALFlowNet
+    from training.runtime.checkpoints import load_checkpoint
+
+    ckpt = load_checkpoint(checkpoint, kind="flow")
+    net = HALFlowNet(HALFlowConfig(**ckpt["config"]["model"]))
+    net.load_state_dict(ckpt["model"])
+    return net.to(device).eval()
+
+
 def score_checkpoint(train_config, checkpoint, device: str = "cpu") -> dict[str, float]:
     """The validation scores of a saved net on the held-out pairs of ``train_config`` (its cache, split and
     loss), exactly as the trainer computes them, without a run folder."""
     from pipeline.cache import CacheReader
     from training.data import PairDataset, train_val_split
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
-    from training.runtime.checkpoints import load_checkpoint
 
     cfg, d = train_config, train_config.data
-    ckpt = load_checkpoint(checkpoint, kind="flow")
-    model = HALFlowNet(HALFlowConfig(**ckpt["config"]["model"]))
-    model.load_state_dict(ckpt["model"])
-    model = model.to(device).eval()
+    model = load_flow_net(checkpoint, device)
     reader = CacheReader(cfg.cache)
     _, val_idx = train_val_split(reader, d.val_fraction, d.val_pairs_max)
     val_set = PairDataset(reader, val_idx, d.n_points, cfg.seed, d.colour_features, fixed_epoch=-1,
