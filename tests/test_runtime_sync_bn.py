@@ -9,6 +9,7 @@ active exception"), and the workers are killed if they outlive the test.
 from __future__ import annotations
 
 import datetime
+import os
 import queue as queue_module
 
 import numpy as np
@@ -57,6 +58,12 @@ def _worker(rank: int, store_file: str, queue) -> None:
         dist.barrier()  # neither rank tears down while the other may still be in a collective
     finally:
         dist.destroy_process_group()
+    # The work is done and handed over: flush the queue, then leave without the interpreter's teardown, where
+    # gloo's C++ destructors intermittently abort the process ("terminate called without an active
+    # exception", exit -6) after everything succeeded. An exception above still exits non-zero.
+    queue.close()
+    queue.join_thread()
+    os._exit(0)
 
 
 def test_convert_shares_parameters_and_keeps_state_dict_keys():
