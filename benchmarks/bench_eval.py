@@ -32,16 +32,17 @@ def _checkpoint(folder: Path, name: str, n_points: int, width_scale: float) -> P
 
     import torch
 
-    from evaluation.ablations import level_points_for
     from training.config import DataConfig, TrainConfig
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
+    from training.model.halflownet_config import HALFlowConfig, level_points_for
+    from training.model.registry import construct_model
     from training.runtime.checkpoints import save_checkpoint
 
     torch.manual_seed(0)
     model = HALFlowConfig(n_points=n_points, level_points=level_points_for(n_points), width_scale=width_scale)
     cfg = TrainConfig(model=model, data=DataConfig(n_points=n_points))
-    return save_checkpoint(folder / name / "latest.pt", {"kind": "flow", "model": HALFlowNet(model).state_dict(),
-                                                         "step": 0, "config": asdict(cfg)})
+    net = construct_model(cfg.model_name, model)
+    return save_checkpoint(folder / name / "latest.pt", {"kind": "flow", "model": net.state_dict(), "step": 0,
+                                                         "config": asdict(cfg)})
 
 
 def _split(args, tmp: Path):

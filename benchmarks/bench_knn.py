@@ -74,7 +74,9 @@ def bench_fps(repeats: int) -> None:
 def bench_net(repeats: int) -> None:
     import torch
 
-    from training.model import HALFlowConfig, HALFlowNet, count_parameters
+    from training.model.halflownet import count_parameters
+    from training.model.halflownet_config import HALFlowConfig
+    from training.model.registry import construct_model
 
     print(f"\n### HALFlowNet forward on CPU, batch 1, 8192 points (median of {repeats}, ms)\n")
     print("| sampling | mode | ms |")
@@ -84,7 +86,7 @@ def bench_net(repeats: int) -> None:
     pc2 = pc1 + torch.tensor([0.0, 0.0, -0.5])
     rgb = torch.rand(1, 8192, 3, generator=g)
     for sampling in ("fps", "random"):
-        net = HALFlowNet(HALFlowConfig(sampling=sampling))
+        net = construct_model("halflownet", HALFlowConfig(sampling=sampling))
         net.eval()
         with torch.no_grad():
             ms = _median_ms(lambda: net(pc1, pc2, rgb, rgb), repeats)

@@ -63,7 +63,7 @@ def build_cache(workdir: Path) -> Path:
 
 def _config(cache: Path, run_dir: Path, size: str, args):
     from training.config import DataConfig, OptimConfig, TrainConfig
-    from training.model.halflownet import HALFlowConfig
+    from training.model.halflownet_config import HALFlowConfig
 
     s = SIZES[size]
     levels = s["level_points"]

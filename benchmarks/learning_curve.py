@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
             if "running" in variant.split("+"):
                 net.net.set_eval_norm_stats("running")
             nets.append(net)
-        scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.level_points[0])
+        scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.output_points[0])
         row = {"step": m}
         for split_name, by_method in scores.items():
             for net in nets:
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     base_file = out / "baselines.json"
     names = [b for b in args.baselines.split(",") if b]
     if names and not base_file.exists() and cfg is not None:
-        scores = score_splits([make_baseline(b) for b in names], splits, cfg.data.n_points, cfg.model.level_points[0])
+        scores = score_splits([make_baseline(b) for b in names], splits, cfg.data.n_points, cfg.model.output_points[0])
         base_file.write_text(json.dumps(scores, indent=1))
     baselines = json.loads(base_file.read_text()) if base_file.exists() else {}
     keys = sorted({k for r in rows for k in r})

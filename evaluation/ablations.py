@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import ConfigError
+from training.model.halflownet_config import level_points_for  # noqa: F401  (re-exported for the tests and tools)
+from training.model.registry import DEFAULT_NET, config_class
 
 # Table II (paper order): each row drops one of the four losses; the last is the full loss.
 LOSS_VARIANTS: dict[str, dict[str, bool]] = {
@@ -46,7 +48,8 @@ TABLES = ("II", "III")
 @dataclass
 class AblationConfig:
     """One ablation study. Sizes: ``size`` is stage one's working image size (WxH); ``n_points`` the
-    points per cloud in training and evaluation; ``width_scale`` the net's width (1 = paper)."""
+    points per cloud in training and evaluation; ``width_scale`` the net's width (1 = paper); ``model_name``
+    the flow net (:mod:`training.model.registry`)."""
 
     world: str = "cache/demo/world"
     split: str = ""  # default: <world>/sceneflow/flownet3d
@@ -60,6 +63,7 @@ class AblationConfig:
     pose: str = "gt"
     n_points: int = 2048
     width_scale: float = 0.25
+    model_name: str = DEFAULT_NET
     batch_size: int = 4
     max_scenes: int = 0
     device: str = "auto"
@@ -72,6 +76,7 @@ class AblationConfig:
             raise ConfigError("steps and batch size must be >= 1 and max scenes >= 0")
         if self.n_points < 128:
             raise ConfigError(f"n_points must be >= 128 (five levels down to 4 points), got {self.n_points}")
+        config_class(self.model_name)  # an unknown net is refused before any work
         return self
 
 
@@ -89,16 +94,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", default="gt", help="stage-one pose source")
     p.add_argument("--n-points", type=int, default=2048, help="points per cloud in training and evaluation")
     p.add_argument("--width-scale", type=float, default=0.25, help="net width multiplier (1 = paper)")
+    p.add_argument("--model-name", default=DEFAULT_NET,
+                   help="the flow net every variant trains, by its registered name (training.model.registry)")
     p.add_argument("--batch-size", type=int, default=4, help="training pairs per optimiser step")
     p.add_argument("--max-scenes", type=int, default=0, help="evaluate only the first N test scenes (0 = all)")
     p.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
-
-
-def level_points_for(n_points: int) -> tuple[int, ...]:
-    """:func:`training.config.level_points_for` (imported when called: this module loads without torch)."""
-    from training.config import level_points_for as levels
-
-    return levels(n_points)
 
 
 def training_sequences(cfg: AblationConfig) -> tuple[str, ...]:
@@ -130,17 +130,16 @@ def preprocess_variant(cfg: AblationConfig, filters: dict[str, bool], out_root: 
 
 def train_config(cfg: AblationConfig, cache: Path, run_dir: Path, loss_switches: dict[str, bool]):
     """The :class:`~training.config.TrainConfig` of one variant."""
-    from training.config import DataConfig, OptimConfig, TrainConfig
-    from training.losses.total import LossWeights
-    from training.model.halflownet import HALFlowConfig
+    from training.config import DataConfig, LossWeights, OptimConfig, TrainConfig
 
+    net = config_class(cfg.model_name)
     return TrainConfig(cache=str(cache), run_dir=str(run_dir), steps=cfg.steps, seed=cfg.seed, device=cfg.device,
                        log_every=max(1, cfg.steps // 10), val_every=cfg.steps, ckpt_every=max(1, cfg.steps // 4),
                        progress=False,
                        data=DataConfig(n_points=cfg.n_points, workers=0),
                        optim=OptimConfig(batch_size=cfg.batch_size),
-                       model=HALFlowConfig(n_points=cfg.n_points, level_points=level_points_for(cfg.n_points),
-                                           width_scale=cfg.width_scale),
+                       model_name=cfg.model_name,
+                       model=net(**net.points_fields(cfg.n_points), width_scale=cfg.width_scale),
                        loss=LossWeights(**loss_switches))
 
 
@@ -152,6 +151,8 @@ def run_folder(cfg: AblationConfig, cache: Path, loss_switches: dict[str, bool],
     tcfg = train_config(cfg, cache, Path("."), loss_switches)
     key = asdict(tcfg)
     key.pop("run_dir")
+    if key["model_name"] == DEFAULT_NET:  # the folders of runs made before nets had names keep theirs
+        key.pop("model_name")
     key["cache"] = str(Path(cache).resolve())
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:10]
     off = [k.removeprefix("use_") for k, v in loss_switches.items() if not v]
@@ -194,7 +195,8 @@ def config_from_args(args: argparse.Namespace) -> AblationConfig:
     return AblationConfig(world=args.world, split=args.split, out=args.out, tables=csv(args.tables),
                           sequences=csv(args.sequences), steps=args.steps, seed=args.seed, size=args.size,
                           depth=args.depth, pose=args.pose, n_points=args.n_points, width_scale=args.width_scale,
-                          batch_size=args.batch_size, max_scenes=args.max_scenes, device=args.device).validate()
+                          model_name=args.model_name, batch_size=args.batch_size, max_scenes=args.max_scenes,
+                          device=args.device).validate()
 
 
 def run_ablations(args: argparse.Namespace | AblationConfig) -> int:

@@ -38,8 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--split", required=True, help="test split folder (FlowNet3D npz, HPLFlowNet, OpenSceneFlow h5)")
     r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
+    from evaluation.methods import baselines_help
+
     r.add_argument("--baselines", default="zero,icp-p2p,icp-p2l,fgr",
-                   help="comma list of zero, static (splits with poses), icp-p2p, icp-p2l, fgr, nsfp ('' for none)")
+                   help=f"comma list of {baselines_help()} ('' for none)")
     r.add_argument("--protocol", default="fps", choices=(*PROTOCOLS, *ALIASES),
                    help="which points are scored (docs/evaluation-protocols.md): released = first n-score of the "
                         "seeded random sample (3DUnMonoFlow), fps = n-score farthest-point samples (the level-0 "
@@ -122,7 +124,7 @@ def _run(args) -> int:
     import re
     import sys
 
-    from evaluation.methods import NetMethod, make_baseline, refined
+    from evaluation.methods import NetMethod, make_method
     from evaluation.protocols import run_protocol, summary_rows
     from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
@@ -165,17 +167,19 @@ def _run(args) -> int:
     baselines = list(dict.fromkeys(_csv(args.baselines)))
     if args.refine and not nets:
         raise ConfigError("--refine refines a net's flow: give at least one --checkpoint")
-    methods = [*nets, *[make_baseline(b) for b in baselines]]
+    named = {b: make_method(b) for b in baselines}
+    methods = [*nets, *named.values()]
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
     if args.refine:  # after the nets got distinct names; one refined row right after each net's own row
-        methods = [x for m in methods for x in ([m, refined(m)] if any(m is n for n in nets) else [m])]
+        methods = [x for m in methods for x in ([m, make_method("refine", m)] if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
         if hasattr(getattr(m, "config", None), "iterations"):
             m.config.device = args.device
-    if "static" in baselines and first.pose is None:
-        raise ConfigError(f"baseline 'static' needs T_1→2 per scene; the scenes of {args.split} have no pose")
+    for b, m in named.items():
+        if getattr(m, "needs_pose", False) and first.pose is None:
+            raise ConfigError(f"baseline '{b}' needs T_1→2 per scene; the scenes of {args.split} have no pose")
     sizes = {(n.n_points, n.n_score) for n in nets}
     if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
         raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
@@ -185,8 +189,8 @@ def _run(args) -> int:
     cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
                          n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     for n in nets:
-        if cfg.n_points < n.config.level_points[0]:
-            raise ConfigError(f"{n.name} needs at least {n.config.level_points[0]} points per cloud, "
+        if cfg.n_points < n.n_score:
+            raise ConfigError(f"{n.name} needs at least {n.n_score} points per cloud, "
                               f"--n-points is {cfg.n_points}")
         if n.uses_colour and first.color1 is None:
             print(f"WARNING: {n.name} was trained with colour features but {args.split} has no colours: it gets "

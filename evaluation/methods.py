@@ -16,11 +16,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from pipeline.errors import ConfigError, InputError
+from pipeline.errors import ConfigError
 
 
 class FlowMethod(Protocol):
@@ -62,40 +62,26 @@ class StaticPoseMethod:
 class NetMethod:
     """A scene-flow net restored from a ``monoflow-train`` checkpoint (``latest.pt``, kind ``"flow"``).
 
-    The architecture comes from the checkpoint's ``config["model"]`` (HALFlowConfig fields); colours are
-    the per-point features when the run trained with ``config["data"]["colour_features"]`` and the split
-    has them, else zeros (:attr:`uses_colour`).
+    The net is the registered one the checkpoint names (``config["model_name"]``, HALFlowNet for older
+    checkpoints; :mod:`training.model.registry`) with the architecture of its ``config["model"]``; colours
+    are the per-point features when the run trained with ``config["data"]["colour_features"]`` and the
+    split has them, else zeros (:attr:`uses_colour`).
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None) -> None:
         import torch
 
-        from training.model.halflownet import HALFlowConfig, HALFlowNet
-        from training.runtime.checkpoints import load_checkpoint, nonfinite_entries
+        from training.model.registry import restore_flow_net
+        from training.runtime.checkpoints import load_checkpoint
         from training.runtime.device import resolve_device
 
         path = Path(checkpoint)
         ckpt = load_checkpoint(path, kind="flow")
-        try:
-            cfg = ckpt["config"]
-            self.config = HALFlowConfig(**cfg["model"])
-            state = ckpt["model"]
-        except (KeyError, TypeError) as exc:
-            raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
-        except ConfigError as exc:
-            raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
-        bad = nonfinite_entries(state) if isinstance(state, dict) else []
-        if bad:
-            raise InputError(path, f"non-finite weights (NaN or inf) in {', '.join(bad[:4])}"
-                                   + (f" and {len(bad) - 4} more" if len(bad) > 4 else ""))
+        self.model_name, self.config, net = restore_flow_net(ckpt, path)
+        cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)
-        self.net = HALFlowNet(self.config)
-        try:
-            self.net.load_state_dict(state)
-        except RuntimeError as exc:
-            raise InputError(path, f"weights do not match the model config ({str(exc).splitlines()[0]})") from None
-        self.net = self.net.to(self.device).eval()
+        self.net = net.to(self.device).eval()
         self.run_config = cfg  # the run's whole config (evaluation.scenes reads what it trained on)
         self.step = int(ckpt.get("step", 0))
         self.checkpoint = path
@@ -109,8 +95,8 @@ class NetMethod:
 
     @property
     def n_score(self) -> int:
-        """Level-0 points (the default ``n_score`` of the ``fps`` / ``released`` protocols)."""
-        return self.config.level_points[0]
+        """Points of the net's finest level (the default ``n_score`` of the ``fps`` / ``released`` protocols)."""
+        return self.config.output_points[0]
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         torch = self._torch
@@ -136,28 +122,88 @@ def refined(method: FlowMethod, config: Any = None) -> FlowMethod:
     return RefinedMethod(method, config or RefineConfig())
 
 
-BASELINES = ("zero", "static", "icp-p2p", "icp-p2l", "fgr", "nsfp")
+# ---------------------------------------------------------------------------------------------- registry
+# Every method by name: a stand-alone method is built from nothing (``make()``), a wrapper from the method
+# it refines (``make(method)``). The trained nets come from checkpoints (:class:`NetMethod`, their
+# architecture from training.model.registry).
+
+
+@dataclass(frozen=True)
+class MethodEntry:
+    """How to build one named method: ``make()`` (stand-alone) or ``make(method)`` (``wraps``); ``note`` is
+    what ``--baselines`` help says about it."""
+
+    make: Callable[..., FlowMethod]
+    wraps: bool = False
+    note: str = ""
+
+
+def _icp(kind: str) -> FlowMethod:
+    from evaluation.baselines.icp import ICPBaseline, ICPConfig
+
+    return BaselineMethod(ICPBaseline(ICPConfig(method=kind)))
+
+
+def _zero() -> FlowMethod:
+    from evaluation.baselines.zero import ZeroFlowBaseline
+
+    return BaselineMethod(ZeroFlowBaseline())
+
+
+def _fgr() -> FlowMethod:
+    from evaluation.baselines.fgr import FGRBaseline
+
+    return BaselineMethod(FGRBaseline())
+
+
+def _nsfp() -> FlowMethod:
+    from evaluation.optimise import NSFPMethod
+
+    return NSFPMethod()  # per-scene MLP prior fitted with a truncated Chamfer loss (evaluation/optimise)
+
+
+_METHODS: dict[str, MethodEntry] = {
+    "zero": MethodEntry(_zero),
+    "static": MethodEntry(StaticPoseMethod, note="splits with poses"),
+    "icp-p2p": MethodEntry(lambda: _icp("point_to_point")),
+    "icp-p2l": MethodEntry(lambda: _icp("point_to_plane")),
+    "fgr": MethodEntry(_fgr),
+    "nsfp": MethodEntry(_nsfp),
+    "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
+}
+
+
+def register_method(name: str, make: Callable[..., FlowMethod], wraps: bool = False, note: str = "") -> None:
+    """Make a method available by ``name`` (``--baselines name`` when stand-alone); a taken name is refused."""
+    entry = MethodEntry(make, wraps, note)
+    if _METHODS.get(name, entry) != entry:
+        raise ConfigError(f"method '{name}' is already registered")
+    _METHODS[name] = entry
+
+
+def method_names(wrappers: bool = False) -> tuple[str, ...]:
+    """The stand-alone methods (``wrappers=False``) or the wrappers, in registration order."""
+    return tuple(n for n, e in _METHODS.items() if e.wraps == wrappers)
+
+
+def baselines_help() -> str:
+    """``zero, static (splits with poses), icp-p2p, …``: the stand-alone methods for ``--baselines``."""
+    return ", ".join(f"{n} ({_METHODS[n].note})" if _METHODS[n].note else n for n in method_names())
+
+
+BASELINES = method_names()  # the built-in stand-alone methods
+
+
+def make_method(name: str, inner: FlowMethod | None = None) -> FlowMethod:
+    """The method ``name`` with its default settings; a wrapper (``refine``) wraps ``inner``."""
+    entry = _METHODS.get(name)
+    if entry is None or entry.wraps != (inner is not None):
+        kind = "wrapper" if inner is not None else "baseline"
+        raise ConfigError(f"unknown {kind} '{name}' (choose from {', '.join(method_names(inner is not None))})")
+    return entry.make(inner) if entry.wraps else entry.make()
 
 
 def make_baseline(name: str) -> FlowMethod:
-    """One of :data:`BASELINES`, with its default settings (``static`` needs a split with poses; ``nsfp``
-    is Neural Scene Flow Prior fitted per scene, :class:`evaluation.optimise.NSFPMethod`)."""
-    from evaluation.baselines.fgr import FGRBaseline
-    from evaluation.baselines.icp import ICPBaseline, ICPConfig
-    from evaluation.baselines.zero import ZeroFlowBaseline
-
-    if name == "zero":
-        return BaselineMethod(ZeroFlowBaseline())
-    if name == "static":
-        return StaticPoseMethod()
-    if name == "icp-p2p":
-        return BaselineMethod(ICPBaseline(ICPConfig(method="point_to_point")))
-    if name == "icp-p2l":
-        return BaselineMethod(ICPBaseline(ICPConfig(method="point_to_plane")))
-    if name == "fgr":
-        return BaselineMethod(FGRBaseline())
-    if name == "nsfp":
-        from evaluation.optimise import NSFPMethod
-
-        return NSFPMethod()  # per-scene MLP prior fitted with a truncated Chamfer loss (evaluation/optimise)
-    raise ConfigError(f"unknown baseline '{name}' (choose from {', '.join(BASELINES)})")
+    """A stand-alone method (:func:`method_names`) with its default settings (``static`` needs a split with
+    poses; ``nsfp`` is Neural Scene Flow Prior fitted per scene, :class:`evaluation.optimise.NSFPMethod`)."""
+    return make_method(name)

@@ -32,6 +32,11 @@ class ConfigError(MonoflowError):
     """An option or combination of options makes no sense."""
 
 
+class TrainingDiverged(MonoflowError):
+    """A training run's loss or gradient became NaN or infinite (either trainer stops with this, keeping its
+    last good checkpoint)."""
+
+
 def run_cli(main_body, argv=None) -> int:
     """Run a CLI body, turning :class:`MonoflowError` into ``error: ...`` on stderr and exit code 2; an
     ``OSError`` that escaped (disk full, permission denied) likewise, as ``error: <file>: <reason>``."""

@@ -3,6 +3,10 @@
 A field ``lr`` becomes ``--lr``; a nested dataclass field ``model.width_scale`` becomes
 ``--model.width_scale``. Precedence: dataclass defaults < TOML file < flags. Tuples take
 comma-separated values (``--alpha 0.16,0.08,0.04,0.02``); booleans take ``true``/``false``.
+
+A nested field whose class depends on another field (the net's config on ``model_name``) says so in its
+metadata: ``field(..., metadata={"class_from": ("model_name", resolve)})``, ``resolve(name) -> dataclass``;
+its flags and its values then follow the selector's value.
 """
 
 from __future__ import annotations
@@ -85,7 +89,25 @@ def field_docs(cls) -> dict[str, str]:
     """
     names = [f.name for f in _fields(cls)]
     docs: dict[str, str] = {}
-    lines = (inspect.getdoc(cls) or "").splitlines()
+    paragraphs: list[str] = []
+    for klass in [c for c in cls.__mro__ if dataclasses.is_dataclass(c)]:  # a subclass's entries win
+        paragraphs += _docstring_entries(klass.__dict__.get("__doc__") or "", names, docs)
+    for n in names:  # a field only mentioned in another entry's text or a paragraph: that text
+        if n not in docs:
+            word = re.compile(rf"(?<![\w.]){re.escape(n)}(?!\w)")
+            hit = next((t for t in docs.values() if word.search(t)), None) or next(
+                (p for p in paragraphs if word.search(p)), None)
+            if hit:
+                docs[n] = hit
+    for f in _fields(cls):
+        if f.metadata.get("help"):
+            docs[f.name] = f.metadata["help"]
+    return docs
+
+
+def _docstring_entries(doc: str, names: list[str], docs: dict[str, str]) -> list[str]:
+    """Add the ``name: text`` entries of one docstring to ``docs`` (first entry wins); return its paragraphs."""
+    lines = inspect.cleandoc(doc).splitlines()
     i = 0
     while i < len(lines):
         m = _ENTRY.match(lines[i])
@@ -106,35 +128,26 @@ def field_docs(cls) -> dict[str, str]:
                 if n == key or (key.endswith("*") and n.startswith(key[:-1])):
                     docs.setdefault(n, body)
         i = j
-    paragraphs = [" ".join(x.strip() for x in para.splitlines()) for para in re.split(r"\n\s*\n", "\n".join(lines))]
-    for n in names:  # a field only mentioned in another entry's text or a paragraph: that text
-        if n not in docs:
-            word = re.compile(rf"(?<![\w.]){re.escape(n)}(?!\w)")
-            hit = next((t for t in docs.values() if word.search(t)), None) or next(
-                (p for p in paragraphs if word.search(p)), None)
-            if hit:
-                docs[n] = hit
-    for f in _fields(cls):
-        if f.metadata.get("help"):
-            docs[f.name] = f.metadata["help"]
-    return docs
+    return [" ".join(x.strip() for x in para.splitlines()) for para in re.split(r"\n\s*\n", "\n".join(lines))]
 
 
 def add_dataclass_args(parser: argparse.ArgumentParser, cls, prefix: str = "",
-                       aliases: dict[str, list[str]] | None = None) -> None:
+                       aliases: dict[str, list[str]] | None = None, values: dict[str, Any] | None = None) -> None:
     """Add one ``--flag`` per (nested) field of dataclass ``cls``; defaults stay unset (None).
 
     Help texts come from :func:`field_docs` (the field's ``help`` metadata or the class docstring).
     ``--name-with-dashes`` is accepted as an alias of ``--name_with_underscores``; ``aliases`` adds others
-    ({"data.n_points": ["--n-points"]}).
+    ({"data.n_points": ["--n-points"]}). ``values`` holds dotted selector values ({"model_name": "x"})
+    that choose the class of a ``class_from`` field (default: the selector's default).
     """
     hints = _hints(cls)
     docs = field_docs(cls)
     for f in _fields(cls):
         tp = hints[f.name]
         name = f"{prefix}{f.name}"
-        if _is_dc(tp):
-            add_dataclass_args(parser, tp, prefix=f"{name}.", aliases=aliases)
+        nested = _nested_class(cls, f, hints, values or {}, prefix)
+        if nested is not None:
+            add_dataclass_args(parser, nested, prefix=f"{name}.", aliases=aliases, values=values)
             continue
         help_text = docs.get(f.name, "")
         default = f.default if f.default is not dataclasses.MISSING else (
@@ -147,6 +160,19 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls, prefix: str = "",
         metavar = _metavar(tp)
         parser.add_argument(*flags, dest=name, type=_converter(tp), default=None, metavar=metavar,
                             help=f"{help_text} (default: {_show(default)})".strip().replace("%", "%%"))
+
+
+def _nested_class(cls, f: dataclasses.Field, hints: dict[str, Any], values: dict[str, Any], prefix: str):
+    """The dataclass of nested field ``f`` of ``cls`` (None for a plain field): its annotation, or for a
+    ``class_from`` field the class its resolver gives for the selector's value in ``values`` (dotted
+    names), else the selector's default."""
+    chooser = f.metadata.get("class_from")
+    if chooser is None:
+        return hints[f.name] if _is_dc(hints[f.name]) else None
+    selector, resolve = chooser
+    key = f"{prefix}{selector}"
+    return resolve(values[key] if values.get(key) is not None else
+                   next(g.default for g in _fields(cls) if g.name == selector))
 
 
 def add_underscore_aliases(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -184,13 +210,15 @@ def _metavar(tp: Any) -> str | None:
     return None
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested dict (``asdict`` of a config, a TOML file) as dotted ``{"section.field": value}`` pairs;
+    lists become tuples (the configs' sequence type)."""
     out: dict[str, Any] = {}
     for k, v in d.items():
         if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
+            out.update(flatten(v, f"{prefix}{k}."))
         else:
-            out[f"{prefix}{k}"] = v
+            out[f"{prefix}{k}"] = tuple(v) if isinstance(v, list) else v
     return out
 
 
@@ -203,10 +231,10 @@ def _build(cls, values: dict[str, Any], prefix: str, source: str):
         if head is not None and head not in known:
             raise ConfigError(f"{source}: unknown option '{key}' for {cls.__name__}")
     for f in _fields(cls):
-        tp = hints[f.name]
         name = f"{prefix}{f.name}"
-        if _is_dc(tp):
-            kwargs[f.name] = _build(tp, values, f"{name}.", source)
+        nested = _nested_class(cls, f, hints, values, prefix)
+        if nested is not None:
+            kwargs[f.name] = _build(nested, values, f"{name}.", source)
         elif name in values:
             v = values[name]
             if isinstance(v, list):
@@ -218,7 +246,7 @@ def _build(cls, values: dict[str, Any], prefix: str, source: str):
 def load_toml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
-        return _flatten(tomllib.loads(path.read_text()))
+        return flatten(tomllib.loads(path.read_text()))
     except FileNotFoundError:
         raise InputError(path, "config file not found") from None
     except tomllib.TOMLDecodeError as exc:
@@ -228,7 +256,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 def build_config(cls, args: argparse.Namespace, config_file: str | Path | None = None, base=None):
     """Resolve ``cls`` from defaults (or the ``base`` instance, e.g. a preset) < TOML ``config_file`` < flags
     set in ``args``."""
-    values: dict[str, Any] = _flatten(dataclasses.asdict(base)) if base is not None else {}
+    values: dict[str, Any] = flatten(dataclasses.asdict(base)) if base is not None else {}
     source = "flags"
     if config_file:
         values.update(load_toml(config_file))
@@ -243,6 +271,6 @@ def config_from_dict(cls, data: dict[str, Any], overrides: dict[str, Any] | None
                      source: str = "saved config"):
     """Rebuild a (nested) dataclass config from its ``dataclasses.asdict`` form (or any part of it), with
     ``overrides`` as dotted ``{"section.field": value}`` pairs on top; ``source`` names it in errors."""
-    values = _flatten(data)
+    values = flatten(data)
     values.update(overrides or {})
     return _build(cls, values, "", source)

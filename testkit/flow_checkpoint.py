@@ -11,13 +11,15 @@ def tiny_flow_checkpoint(path: str | Path, seed: int = 0, colour: bool = True, n
     layout NetMethod and monoflow-predict read (kind "flow", config.model, config.data, model)."""
     import torch
 
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
+    from training.model.halflownet_config import HALFlowConfig
+    from training.model.registry import construct_model
     from training.runtime.checkpoints import save_checkpoint
 
     cfg = HALFlowConfig(n_points=n_points, level_points=(128, 64, 32, 16, 8), level_k=(8, 8, 8, 8, 4),
                         cost_k_pc2=8, width_scale=0.25)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        net = HALFlowNet(cfg)
+        net = construct_model("halflownet", cfg)
     return save_checkpoint(Path(path), {"kind": "flow", "model": net.state_dict(), "step": 0,
-                                        "config": {"model": asdict(cfg), "data": {"colour_features": colour}}})
+                                        "config": {"model_name": "halflownet", "model": asdict(cfg),
+                                                   "data": {"colour_features": colour}}})

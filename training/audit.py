@@ -31,7 +31,8 @@ import torch
 from torch import Tensor
 
 from training.data import FlowBatch, PairDataset, collate, pairs_with_gt_flow, split_pairs
-from training.losses.total import LevelInputs, LossWeights, multi_level_loss
+from training.config import LossWeights
+from training.losses.total import LevelInputs, multi_level_loss
 
 
 @dataclass
@@ -126,7 +127,7 @@ def audit(cfg: AuditConfig) -> list[dict]:
         from training.selection import load_flow_net
 
         net = load_flow_net(cfg.checkpoint)
-        level_points = net.config.level_points[:4]
+        level_points = net.config.output_points
     data = PairDataset(reader, pairs, cfg.n_points, cfg.seed, colour_features=False, fixed_epoch=-1)
     sums: dict[tuple[str, int], dict[str, float]] = {}
     for j in range(len(pairs)):

@@ -13,13 +13,10 @@ and exit code 2; so does a diverging run (non-finite loss), which keeps its last
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 from pathlib import Path
+from typing import Any
 
 from pipeline.errors import run_cli
-
-_PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 
 
 def _describe(p: argparse.ArgumentParser) -> None:
@@ -37,84 +34,47 @@ def _new_parser() -> argparse.ArgumentParser:
                                    formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The parser, with one flag per (nested) field of :class:`training.config.TrainConfig`."""
+def model_name_in(argv: list[str] | None) -> str:
+    """The net ``argv`` trains: ``--model_name``, else the ``--config`` file's ``model_name``, else the
+    default (the ``--model.*`` flags are that net's)."""
+    from pipeline.options import load_toml
+    from training.model.registry import DEFAULT_NET
+
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--config")
+    pre.add_argument("--model_name", "--model-name")
+    known, _ = pre.parse_known_args(argv or [])
+    if known.model_name:
+        return known.model_name
+    return str((load_toml(known.config) if known.config else {}).get("model_name") or DEFAULT_NET)
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser, with one flag per (nested) field of :class:`training.config.TrainConfig`, the ``--model.*``
+    ones of the net ``argv`` names (:func:`model_name_in`). Imports no torch (the configs are torch-free),
+    so ``--help`` is instant."""
     from pipeline.options import add_dataclass_args
     from training.config import TrainConfig
 
     p = _new_parser()
     _describe(p)
-    add_dataclass_args(p, TrainConfig)
+    add_dataclass_args(p, TrainConfig, values={"model_name": model_name_in(argv)})
     return p
 
 
-# ---------------------------------------------------------------------------------------------- --help
-# TrainConfig nests HALFlowConfig and LossWeights, whose modules import torch (≈2 s). ``--help`` only
-# needs field names and defaults, so it reads them from the source (ast, nothing executed) and builds the
-# same flags on look-alike dataclasses; tests/test_trainer_cli.py checks both parsers agree flag by flag.
-
-
-def _module_file(module: str) -> Path:
-    path = _PACKAGE_ROOT.joinpath(*module.split("."))
-    return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
-
-
-def _classes(module: str) -> tuple[dict[str, ast.ClassDef], dict[str, str]]:
-    """A module's top-level class definitions and where its ``from X import Name`` names come from."""
-    tree = ast.parse(_module_file(module).read_text())
-    classes = {n.name: n for n in tree.body if isinstance(n, ast.ClassDef)}
-    imported = {a.asname or a.name: n.module for n in tree.body if isinstance(n, ast.ImportFrom) and n.module
-                for a in n.names}
-    return classes, imported
-
-
-def _lookalike(name: str, module: str):
-    """A dataclass with the fields and defaults of dataclass ``name`` of ``module``, built from source."""
-    classes, imported = _classes(module)
-    if name not in classes:
-        return _lookalike(name, imported[name])
-    fields = []
-    for node in classes[name].body:
-        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None):
-            continue
-        value = node.value
-        if isinstance(value, ast.Call) and getattr(value.func, "id", "") == "field":
-            factory = next(k.value.id for k in value.keywords if k.arg == "default_factory")
-            nested = _lookalike(factory, module)
-            fields.append((node.target.id, nested, dataclasses.field(default_factory=nested)))
-        else:
-            default = ast.literal_eval(value)
-            fields.append((node.target.id, type(default), dataclasses.field(default=default)))
-    # the docstring travels along: the help texts come from it (pipeline.options.field_docs)
-    return dataclasses.make_dataclass(name, fields, namespace={"__doc__": ast.get_docstring(classes[name])})
-
-
-def build_help_parser() -> argparse.ArgumentParser:
-    """The parser of :func:`build_parser` (same flags, same help text), built without importing torch."""
-    from pipeline.options import add_dataclass_args
-
-    p = _new_parser()
-    _describe(p)
-    add_dataclass_args(p, _lookalike("TrainConfig", "training.config"))
-    return p
+build_help_parser = build_parser  # the name ``--help`` used while the real parser imported torch
 
 
 def _main(argv: list[str] | None) -> int:
     import sys
 
     args_in = sys.argv[1:] if argv is None else argv
-    if any(a in ("-h", "--help") for a in args_in):
-        try:
-            parser = build_help_parser()
-        except (ValueError, KeyError, StopIteration, SyntaxError, OSError, TypeError):
-            parser = build_parser()  # a default the source reader cannot evaluate: the slow, exact way
-        parser.parse_args(["--help"])  # prints and exits
-    args = build_parser().parse_args(argv)
+    args = build_parser(args_in).parse_args(args_in)
     from pipeline.options import build_config
     from training.config import TrainConfig
     from training.trainer import Trainer
 
-    apply_n_points(args)
+    apply_n_points(args, model_name_in(args_in))
     cfg = build_config(TrainConfig, args, args.config)
     check_run_dir(cfg.run_dir, resume=args.resume, overwrite=args.overwrite)
     trainer = Trainer(cfg, resume=args.resume)
@@ -128,14 +88,17 @@ def _main(argv: list[str] | None) -> int:
     return 0
 
 
-def apply_n_points(args: argparse.Namespace) -> None:
-    """``--n_points N``: data.n_points, model.n_points and model.level_points from one flag (explicit ones win)."""
+def apply_n_points(args: argparse.Namespace, model_name: str | None = None) -> None:
+    """``--n_points N``: data.n_points and the net's point fields (model.n_points, and model.level_points for
+    HALFlowNet: :meth:`~training.model.contract.FlowNetConfig.points_fields`) from one flag (explicit ones win)."""
     n = getattr(args, "n_points", None)
     if n is None:
         return
-    from training.config import level_points_for
+    from training.model.registry import DEFAULT_NET, config_class
 
-    for key, value in (("data.n_points", n), ("model.n_points", n), ("model.level_points", level_points_for(n))):
+    name = model_name or getattr(args, "model_name", None) or DEFAULT_NET
+    fields: dict[str, Any] = {f"model.{k}": v for k, v in config_class(name).points_fields(n).items()}
+    for key, value in {"data.n_points": n, **fields}.items():
         if getattr(args, key, None) is None:
             setattr(args, key, value)
 

@@ -1,11 +1,19 @@
-"""Configuration of a scene-flow training run (saved as ``config.json`` in the run folder)."""
+"""Configuration of a scene-flow training run (saved as ``config.json`` in the run folder).
+
+Torch-free, so that ``monoflow-train --help`` and the evaluator's config handling load without torch. The
+net's own config is the registered net's (:mod:`training.model.registry`, ``model_name``).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from training.losses.total import LossWeights
-from training.model.halflownet import HALFlowConfig
+from pipeline.errors import ConfigError
+from training.choices import ALPHA_ORDERS, DEPTH_VARIANTS, AlphaOrder, DepthVariant, KnnBackend
+from training.model.contract import FlowNetConfig
+from training.model.halflownet_config import HALFlowConfig, level_points_for  # noqa: F401  (re-exported)
+from training.model.registry import DEFAULT_NET, config_class
+from training.runtime.run_config import RunConfig
 
 
 @dataclass
@@ -56,17 +64,6 @@ class DataConfig:
                 "ground_jitter_m": self.ground_jitter_m}
 
 
-def level_points_for(n_points: int) -> tuple[int, ...]:
-    """The paper's level sizes (2048/1024/256/64/16 for 8192 inputs), scaled to ``n_points``; for small
-    inputs the coarsest level keeps 4 points and each finer level at least twice the next coarser one,
-    so the levels stay strictly decreasing (256 → 64/32/16/8/4). Needs ``n_points >= 128``."""
-    levels = [int(n_points * f) for f in (0.25, 0.125, 1 / 32, 1 / 128, 1 / 512)]
-    levels[4] = max(4, levels[4])
-    for i in range(3, -1, -1):
-        levels[i] = max(levels[i], 2 * levels[i + 1])
-    return tuple(levels)
-
-
 @dataclass
 class OptimConfig:
     """Adam with the paper's step decay: lr · decay^(samples // decay_every), floored at lr_min.
@@ -87,8 +84,60 @@ class OptimConfig:
     grad_clip: float = 0.0
 
 
+
 @dataclass
-class TrainConfig:
+class LossWeights:
+    """Weights and switches of the unsupervised loss.
+
+    beta: (depth, dynamic-static, Chamfer, Laplacian) = (β1, β2, β3, β4), paper §IV-B.
+    alpha: (α1, α2, α3, α4) as the paper lists them. The paper does not say which end of the pyramid
+        α1 belongs to. ``alpha_order="released"`` (default) follows the released code, which gives the
+        largest factor to the finest level: finest-first weights are ``reversed(alpha)`` = (0.16, 0.08,
+        0.04, 0.02). ``"paper"`` reads α_k as level k counted from the finest: (0.02, 0.04, 0.08, 0.16).
+    use_*: switch a term off for the loss ablations (it is then neither computed nor logged).
+    depth_variant: ``"paper"`` | ``"released"`` (see :func:`depth_consistency`).
+    laplacian_k, interp_k: neighbours of the Laplacian (10) and of its interpolation (5).
+    eps: depth (metres) at or below which a warped point counts as behind the camera.
+    depth_edge_tolerance: depth consistency ignores points whose bilinear depth sample straddles a depth
+        edge (2×2 pixels spanning more than this fraction); 0 = plain bilinear sampling (the paper).
+    depth_norm: ``l1`` (the residual's length, default) or ``l2`` (its square, the paper's form).
+    knn_backend: "auto" | "kdtree" | "torch" neighbour search of the Laplacian terms (see training.knn).
+    """
+
+    beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
+    alpha: tuple[float, ...] = (0.02, 0.04, 0.08, 0.16)
+    alpha_order: AlphaOrder = "released"
+    use_depth: bool = True
+    use_ds: bool = True
+    use_chamfer: bool = True
+    use_laplacian: bool = True
+    depth_variant: DepthVariant = "paper"
+    laplacian_k: int = 10
+    interp_k: int = 5
+    eps: float = 1e-3
+    depth_edge_tolerance: float = 0.05
+    depth_norm: str = "l1"
+    knn_backend: KnnBackend = "auto"
+
+    def __post_init__(self) -> None:
+        self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
+        self.alpha = tuple(float(a) for a in self.alpha)
+        if len(self.beta) != 4:
+            raise ConfigError(f"beta must have 4 weights (depth, ds, chamfer, laplacian), got {self.beta}")
+        if not self.alpha:
+            raise ConfigError("alpha must have at least one level factor")
+        if any(w < 0 for w in self.beta + self.alpha):
+            raise ConfigError(f"loss weights must be non-negative, got beta={self.beta} alpha={self.alpha}")
+        if self.alpha_order not in ALPHA_ORDERS:
+            raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
+        if self.depth_variant not in DEPTH_VARIANTS:
+            raise ConfigError(f"depth_variant must be one of {DEPTH_VARIANTS}, got {self.depth_variant!r}")
+        if self.laplacian_k < 1 or self.interp_k < 1:
+            raise ConfigError(f"laplacian_k and interp_k must be ≥ 1, got {self.laplacian_k}, {self.interp_k}")
+
+
+@dataclass
+class TrainConfig(RunConfig):
     """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` pairs).
 
     epochs: when > 0, overrides ``steps`` (ceil(epochs · training pairs / batch size)).
@@ -98,36 +147,28 @@ class TrainConfig:
         batch B train like one process with B); false = per-process statistics, as plain DDP does.
     deterministic: ``torch.use_deterministic_algorithms`` (warn only); on the CPU a run is repeatable
         with a fixed ``threads`` either way.
-    log_every / val_every / ckpt_every: in steps; the last step always validates and checkpoints.
     select_by: the held-out score ``best.pt`` minimises: ``val_l0`` (the finest level's loss, needs no
         labels), ``val_loss`` (the whole multi-level loss) or ``val_epe3d`` (needs ground-truth flow;
         synthetic data only). See :mod:`training.selection`.
+    model_name: the flow net, by its name in training.model.registry (halflownet = the paper's
+        HALFlowNet); the model.* options are that net's architecture. Stored in the checkpoints.
     cache: stage-one cache folder (<out>/<dataset>/<config-hash>, written by monoflow-preprocess).
     run_dir: run folder (config.json, train.csv / val.csv, latest.pt, best.pt); an existing one is refused
         unless --resume or --overwrite.
     steps: optimiser steps of the run (global batches of optim.batch_size pairs).
     seed: seed of every RNG (Python, numpy, torch) and of the point sampling.
-    device: auto | cpu | cuda[:i] (auto = the GPU when there is one).
     amp: mixed-precision training (CUDA).
-    progress: tqdm progress bar.
     """
 
-    cache: str = "cache/synthetic"
     run_dir: str = "runs/flow"
-    steps: int = 1000
+    cache: str = "cache/synthetic"
     epochs: float = 0.0
-    seed: int = 0
-    device: str = "auto"
     threads: int = 0
     amp: bool = False
     sync_bn: bool = True
-    deterministic: bool = False
-    log_every: int = 10
-    val_every: int = 100
-    ckpt_every: int = 100
-    progress: bool = True
     select_by: str = "val_l0"
+    model_name: str = DEFAULT_NET
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
-    model: HALFlowConfig = field(default_factory=HALFlowConfig)
+    model: FlowNetConfig = field(default_factory=HALFlowConfig, metadata={"class_from": ("model_name", config_class)})
     loss: LossWeights = field(default_factory=LossWeights)

@@ -19,20 +19,17 @@ Coordinates are in any consistent unit (metres in monoflow); distances are in th
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 import torch
 from torch import Tensor
 
 from pipeline.errors import InputError, MonoflowError
+from training.choices import BACKENDS, KnnBackend  # noqa: F401  (re-exported: the backend names)
 
 
 class NonFiniteError(MonoflowError):
     """NaN or inf coordinates given to the kNN (scipy's KD-tree would fail with a traceback)."""
 
-KnnBackend = Literal["auto", "kdtree", "torch"]
-BACKENDS: tuple[str, ...] = ("auto", "kdtree", "torch")
 
 # Entries of the (B, chunk, N) distance block the torch backend materialises at once (128 MiB in fp32).
 DEFAULT_BLOCK_ELEMENTS = 1 << 25

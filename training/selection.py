@@ -69,13 +69,12 @@ def scores_from_sums(sums) -> dict[str, float]:
 
 
 def load_flow_net(checkpoint, device: str = "cpu"):
-    """The net of a ``monoflow-train`` checkpoint (architecture from its ``config.model``), in eval mode."""
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
+    """The net of a ``monoflow-train`` checkpoint (the registered net its ``config.model_name`` names, with
+    the architecture of its ``config.model``), in eval mode."""
+    from training.model.registry import restore_flow_net
     from training.runtime.checkpoints import load_checkpoint
 
-    ckpt = load_checkpoint(checkpoint, kind="flow")
-    net = HALFlowNet(HALFlowConfig(**ckpt["config"]["model"]))
-    net.load_state_dict(ckpt["model"])
+    _, _, net = restore_flow_net(load_checkpoint(checkpoint, kind="flow"), checkpoint)
     return net.to(device).eval()
 
 

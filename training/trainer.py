@@ -30,7 +30,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import ConfigError, InputError, MonoflowError
+from pipeline.errors import ConfigError, InputError, TrainingDiverged
+from pipeline.options import flatten
 from training.config import TrainConfig
 from training.data import (
     EpochAware,
@@ -42,7 +43,8 @@ from training.data import (
     train_val_split,
 )
 from training.losses.total import LevelInputs, multi_level_loss
-from training.model.halflownet import FlowOutput, HALFlowNet
+from training.model.contract import FlowNet, FlowOutput
+from training.model.registry import config_class, construct_model
 from training.runtime import checkpoints, distributed
 from training.runtime.device import resolve_device
 from training.runtime.logs import MetricLogger
@@ -54,10 +56,6 @@ RESUMABLE_CHANGES = frozenset({
     "val_every", "ckpt_every", "progress", "select_by", "data.workers", "data.val_pairs_max", "model.knn_backend",
     "loss.knn_backend",
 })
-
-
-class TrainingDiverged(MonoflowError):
-    """The loss or the gradient became NaN or infinite."""
 
 
 def lr_factor(step: int, cfg: TrainConfig) -> float:
@@ -78,8 +76,9 @@ def gather(x: Tensor, idx: Tensor) -> Tensor:
     return x.gather(1, idx[..., None].expand(-1, -1, x.shape[-1]))
 
 
-def forward_two_passes(net, batch: FlowBatch) -> tuple[FlowOutput, FlowOutput]:
-    """The overall pass on (pc1, pc2) and the dynamic pass on (pc1 + sf_s, pc2) at the same points."""
+def forward_two_passes(net: FlowNet, batch: FlowBatch) -> tuple[FlowOutput, FlowOutput]:
+    """The overall pass on (pc1, pc2) and the dynamic pass on (pc1 + sf_s, pc2) at the same points (the
+    second pass reuses the first's ``sampling``; :mod:`training.model.contract`)."""
     out_o = net(batch.pc1, batch.pc2, batch.feat1, batch.feat2)
     out_d = net(batch.pc1 + batch.static_flow, batch.pc2, batch.feat1, batch.feat2, sampling=out_o.sampling)
     return out_o, out_d
@@ -103,29 +102,23 @@ def epe3d(out: FlowOutput, batch: FlowBatch) -> tuple[float, int]:
     return float(err.sum()), int(err.numel())
 
 
-def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = tuple(v) if isinstance(v, list) else v
-    return out
-
-
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
     """Options (dotted names) whose values differ between two ``asdict(TrainConfig)`` and that change
     what a resumed run computes (everything but :data:`RESUMABLE_CHANGES`); options absent from either
     side (added to the code since) are not compared."""
-    a, b = _flat(saved), _flat(current)
+    a, b = flatten(saved), flatten(current)
     return [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted(a.keys() & b.keys())
             if k not in RESUMABLE_CHANGES and a[k] != b[k]]
 
 
 def check_config(cfg: TrainConfig) -> None:
     """Combinations the dataclasses cannot check alone (ConfigError)."""
-    if cfg.data.n_points < cfg.model.level_points[0]:
-        raise ConfigError(f"data.n_points {cfg.data.n_points} < model.level_points[0] {cfg.model.level_points[0]}: "
+    if not isinstance(cfg.model, config_class(cfg.model_name)):
+        raise ConfigError(f"model_name '{cfg.model_name}' takes a {config_class(cfg.model_name).__name__} as model, "
+                          f"got {type(cfg.model).__name__}")
+    finest = cfg.model.output_points[0]
+    if cfg.data.n_points < finest:
+        raise ConfigError(f"data.n_points {cfg.data.n_points} < model.level_points[0] {finest}: "
                           "set --model.n_points/--model.level_points to match the points drawn")
     from training.selection import CRITERIA
 
@@ -146,10 +139,7 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.data.n_points != cfg.model.n_points:
         raise ConfigError(f"data.n_points {cfg.data.n_points} != model.n_points {cfg.model.n_points}: the net is "
                           "built (and evaluated) for model.n_points points per cloud; set both")
-    sources = (cfg.model.n_points, *cfg.model.level_points)  # level l groups neighbours among these points
-    over = [f"level {i}: {k} > {n}" for i, (k, n) in enumerate(zip(cfg.model.level_k, sources)) if k > n]
-    if over:
-        raise ConfigError(f"model.level_k larger than the points it picks neighbours from ({'; '.join(over)})")
+    cfg.model.check_for_training()
     if not (cfg.epochs > 0 or cfg.steps >= 1) or cfg.epochs < 0:
         raise ConfigError(f"steps must be >= 1 (or epochs > 0), got steps {cfg.steps}, epochs {cfg.epochs}")
     if not 0.0 <= cfg.data.val_fraction < 1.0:
@@ -182,8 +172,8 @@ class Trainer:
         # checks batch size against the pairs and the processes now rather than at the first step
         StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)
 
-        self.net = distributed.wrap_model(HALFlowNet(cfg.model).to(self.device), self.dist, self.device,
-                                          sync_bn=cfg.sync_bn)
+        self.net = distributed.wrap_model(construct_model(cfg.model_name, cfg.model).to(self.device), self.dist,
+                                          self.device, sync_bn=cfg.sync_bn)
         self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg))

@@ -142,8 +142,8 @@ class FlowPredictor:
 
         self.method = NetMethod(checkpoint, device=device)
         n = n_points or self.method.n_points
-        if n < self.method.config.level_points[0]:
-            raise ConfigError(f"{checkpoint}: the net needs at least {self.method.config.level_points[0]} points "
+        if n < self.method.n_score:
+            raise ConfigError(f"{checkpoint}: the net needs at least {self.method.n_score} points "
                               f"per cloud, --n_points is {n}")
         self.protocol = ProtocolConfig(protocol="full", n_points=n, n_score=1, seeds=(seed,), warmup=False)
         self.seed = seed

@@ -12,6 +12,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Literal
 
+from training.runtime.run_config import RunConfig
+
 
 @dataclass
 class DepthDataConfig:
@@ -145,16 +147,10 @@ class DepthEvalConfig:
 
 
 @dataclass
-class DepthTrainConfig:
+class DepthTrainConfig(RunConfig):
     """A whole run. ``steps`` counts optimiser steps (global batches of ``optim.batch_size`` snippets).
 
     run_dir: run folder (config.json, train.csv / val.csv, official-format checkpoints; ``latest.pt`` to resume).
-    steps: optimiser steps of the run.
-    seed: seed of every RNG (Python, numpy, torch).
-    device: auto | cpu | cuda[:i] (auto = the GPU when there is one).
-    deterministic: ask torch for deterministic kernels (warn only).
-    log_every, val_every, ckpt_every: in steps; the last step always validates and checkpoints.
-    progress: tqdm progress bar.
     select_by: which validation number picks the ``*_model_best`` files (lower is better): ``auto`` = depth
         AbsRel when depth ground truth exists, else pose ATE-5 (m) when the poses file exists, else the
         photometric loss; or ``abs_rel`` | ``ate`` | ``rot_err_deg`` | ``loss``. The best files hold the nets
@@ -162,14 +158,8 @@ class DepthTrainConfig:
     """
 
     run_dir: str = "runs/depth"
-    steps: int = 1000
-    seed: int = 0
-    device: str = "auto"
-    deterministic: bool = False
-    log_every: int = 10
     val_every: int = 250
     ckpt_every: int = 250
-    progress: bool = True
     select_by: Literal["auto", "abs_rel", "ate", "rot_err_deg", "loss"] = "auto"
     data: DepthDataConfig = field(default_factory=DepthDataConfig)
     loss: DepthLossConfig = field(default_factory=DepthLossConfig)

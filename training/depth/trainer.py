@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.errors import ConfigError, InputError, MonoflowError
+from pipeline.errors import ConfigError, InputError, TrainingDiverged
 from pipeline.geometry import pose_vec_to_mat
 from pipeline.nets import DispResNet, PoseResNet, load_imagenet_encoder, normalize_image, save_checkpoint
 from training.data import EpochAware, StepBatches
@@ -41,10 +41,6 @@ POSE_CHECKPOINT = "exp_pose_checkpoint.pth.tar"
 DISP_BEST = "dispnet_model_best.pth.tar"
 POSE_BEST = "exp_pose_model_best.pth.tar"
 VAL_LOSS_SNIPPETS = 16  # validation snippets scored for the photometric loss (fixed, unaugmented)
-
-
-class TrainingDiverged(MonoflowError):
-    """The loss became NaN or infinite."""
 
 
 @dataclass

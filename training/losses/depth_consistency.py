@@ -20,8 +20,6 @@ is in m².
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -29,9 +27,7 @@ from torch import Tensor
 from pipeline.errors import InputError
 from pipeline.geometry import backproject, project
 from training.losses._common import check_points, masked_mean
-
-DepthVariant = Literal["paper", "released"]
-DEPTH_VARIANTS: tuple[str, ...] = ("paper", "released")
+from training.choices import DEPTH_VARIANTS, DepthVariant  # noqa: F401  (re-exported)
 
 # A bilinear sample counts as valid only if (almost) all its weight falls on valid depth pixels.
 _VALID_WEIGHT = 1.0 - 1e-4

@@ -10,73 +10,17 @@ points and α alone sets the balance between levels.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import torch
 from torch import Tensor
 
 from pipeline.errors import ConfigError, InputError
-from training.knn import KnnBackend
 from training.losses._common import check_points
 from training.losses.chamfer import chamfer
-from training.losses.depth_consistency import DEPTH_VARIANTS, DepthVariant, depth_consistency
+from training.losses.depth_consistency import depth_consistency
 from training.losses.dynamic_static import dynamic_static
 from training.losses.laplacian import laplacian
-
-AlphaOrder = Literal["released", "paper"]
-ALPHA_ORDERS: tuple[str, ...] = ("released", "paper")
-
-
-@dataclass
-class LossWeights:
-    """Weights and switches of the unsupervised loss.
-
-    beta: (depth, dynamic-static, Chamfer, Laplacian) = (β1, β2, β3, β4), paper §IV-B.
-    alpha: (α1, α2, α3, α4) as the paper lists them. The paper does not say which end of the pyramid
-        α1 belongs to. ``alpha_order="released"`` (default) follows the released code, which gives the
-        largest factor to the finest level: finest-first weights are ``reversed(alpha)`` = (0.16, 0.08,
-        0.04, 0.02). ``"paper"`` reads α_k as level k counted from the finest: (0.02, 0.04, 0.08, 0.16).
-    use_*: switch a term off for the loss ablations (it is then neither computed nor logged).
-    depth_variant: ``"paper"`` | ``"released"`` (see :func:`depth_consistency`).
-    laplacian_k, interp_k: neighbours of the Laplacian (10) and of its interpolation (5).
-    eps: depth (metres) at or below which a warped point counts as behind the camera.
-    depth_edge_tolerance: depth consistency ignores points whose bilinear depth sample straddles a depth
-        edge (2×2 pixels spanning more than this fraction); 0 = plain bilinear sampling (the paper).
-    depth_norm: ``l1`` (the residual's length, default) or ``l2`` (its square, the paper's form).
-    knn_backend: "auto" | "kdtree" | "torch" neighbour search of the Laplacian terms (see training.knn).
-    """
-
-    beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
-    alpha: tuple[float, ...] = (0.02, 0.04, 0.08, 0.16)
-    alpha_order: AlphaOrder = "released"
-    use_depth: bool = True
-    use_ds: bool = True
-    use_chamfer: bool = True
-    use_laplacian: bool = True
-    depth_variant: DepthVariant = "paper"
-    laplacian_k: int = 10
-    interp_k: int = 5
-    eps: float = 1e-3
-    depth_edge_tolerance: float = 0.05
-    depth_norm: str = "l1"
-    knn_backend: KnnBackend = "auto"
-
-    def __post_init__(self) -> None:
-        self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
-        self.alpha = tuple(float(a) for a in self.alpha)
-        if len(self.beta) != 4:
-            raise ConfigError(f"beta must have 4 weights (depth, ds, chamfer, laplacian), got {self.beta}")
-        if not self.alpha:
-            raise ConfigError("alpha must have at least one level factor")
-        if any(w < 0 for w in self.beta + self.alpha):
-            raise ConfigError(f"loss weights must be non-negative, got beta={self.beta} alpha={self.alpha}")
-        if self.alpha_order not in ALPHA_ORDERS:
-            raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
-        if self.depth_variant not in DEPTH_VARIANTS:
-            raise ConfigError(f"depth_variant must be one of {DEPTH_VARIANTS}, got {self.depth_variant!r}")
-        if self.laplacian_k < 1 or self.interp_k < 1:
-            raise ConfigError(f"laplacian_k and interp_k must be ≥ 1, got {self.laplacian_k}, {self.interp_k}")
-
+from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
 
 @dataclass
 class LevelInputs:

@@ -22,141 +22,21 @@ first n points of the level above (deterministic, nested levels; shuffle the inp
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
 from pipeline.errors import ConfigError, InputError
-from training.knn import BACKENDS
+from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
 from training.model.ego_motion import rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
+from training.model.halflownet_config import HALFlowConfig
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
 from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
-
-N_LEVELS = 5  # L0..L4; flows come out at L0..L3
-
-
-@dataclass
-class HALFlowConfig:
-    """Architecture of :class:`HALFlowNet`.
-
-    n_points: nominal points per input cloud (what the data pipeline samples); the net accepts any
-        N >= level_points[0].
-    level_points / level_k: points and set-conv neighbours at L0..L4.
-    cost_k_pc2 / cost_k_pc1: neighbours in frame 2 (point-to-patch) and frame 1 (patch-to-patch) of
-        the first cost volume (L2); refine_k replaces cost_k_pc2 in the refinement cost volumes.
-    width_scale: multiplies every hidden width (0.25 for fast tests).
-    sampling: "fps" | "random" (first-N, see module docstring).
-    feature_dim: channels of the per-point input features (3 for RGB; 0 for none).
-    knn_backend: "auto" | "kdtree" | "torch" (see training.knn).
-    upconv_k: neighbours of the set-upconv layers (HALFlowNet: 8).
-    set_conv_pooling: "max" (HALFlowNet) | "attentive".
-    batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
-    center_input: shift both clouds by pc1's mean before the net (the released port does).
-    ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
-        that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
-        false = the paper's per-point flow regressor. A departure from the paper (README).
-    ego_sigma: metres; the smallest residual scale of the head: a point whose flow differs from the
-        fitted ego-motion by this much counts half static, half moving (Cauchy re-weighting and gate).
-    ego_mad_factor: the scale actually used is max(ego_sigma, ego_mad_factor × 1.4826 × the median
-        residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
-        standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
-    ego_iterations: re-weighting rounds of the robust rigid fit.
-    eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
-        training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
-        so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
-        camera clouds, and a LiDAR test cloud's features have other statistics. Training is unchanged.
-    """
-
-    n_points: int = 8192
-    level_points: tuple[int, ...] = (2048, 1024, 256, 64, 16)
-    level_k: tuple[int, ...] = (32, 24, 16, 16, 8)
-    cost_k_pc2: int = 32
-    cost_k_pc1: int = 4
-    refine_k: int = 6
-    width_scale: float = 1.0
-    sampling: str = "fps"
-    feature_dim: int = 3
-    knn_backend: str = "auto"
-    upconv_k: int = 8
-    set_conv_pooling: str = "max"
-    batch_norm: bool = True
-    center_input: bool = True
-    ego_head: bool = False
-    ego_sigma: float = 0.1
-    ego_mad_factor: float = 3.0
-    ego_iterations: int = 4
-    eval_norm_stats: str = "running"
-
-    def __post_init__(self) -> None:
-        self.level_points = tuple(int(n) for n in self.level_points)
-        self.level_k = tuple(int(k) for k in self.level_k)
-        if len(self.level_points) != N_LEVELS or len(self.level_k) != N_LEVELS:
-            raise ConfigError(
-                f"level_points and level_k need {N_LEVELS} entries, got {self.level_points} and {self.level_k}"
-            )
-        pts = (self.n_points, *self.level_points)
-        if any(a <= b for a, b in zip(pts, pts[1:])) or min(pts) < 1:
-            raise ConfigError(f"n_points and level_points must be positive and strictly decreasing, got {pts}")
-        for name in ("cost_k_pc2", "cost_k_pc1", "refine_k", "upconv_k"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if min(self.level_k) < 1:
-            raise ConfigError(f"level_k must be >= 1, got {self.level_k}")
-        if not self.width_scale > 0:
-            raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
-        if self.sampling not in ("fps", "random"):
-            raise ConfigError(f"sampling must be 'fps' or 'random', got {self.sampling!r}")
-        if self.feature_dim < 0:
-            raise ConfigError(f"feature_dim must be >= 0, got {self.feature_dim}")
-        if self.knn_backend not in BACKENDS:
-            raise ConfigError(f"knn_backend must be one of {BACKENDS}, got {self.knn_backend!r}")
-        if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
-            raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
-                              f"{self.ego_mad_factor}, {self.ego_iterations}")
-        if self.eval_norm_stats not in ("running", "input"):
-            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
-        if self.set_conv_pooling not in ("max", "attentive"):
-            raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
-
-
-@dataclass
-class Sampling:
-    """Which points each level took, as (B, n_l) int64 indices into the level above (L0: into the input).
-
-    pc1: L0..L4 of frame 1; pc2: L0..L3 of frame 2. Reusing one pass's sampling in another (e.g. the
-    dynamic pass ``net(pc1 + sf_s, pc2)`` after ``net(pc1, pc2)``) makes both predict flow at the same
-    points, which a consistency loss between the passes needs; FPS on a rigidly moved cloud would pick the
-    same points only up to floating-point ties.
-    """
-
-    pc1: list[Tensor]
-    pc2: list[Tensor]
-
-
-@dataclass
-class FlowOutput:
-    """What :meth:`HALFlowNet.forward` returns; every list is finest level first (L0, L1, L2, L3).
-
-    flows: (B, n_l, 3) predicted flow of frame-1 points, metres.
-    indices: (B, n_l) int64 indices of those points in the input pc1 (gather pc1, pixel coordinates,
-        static flow … with them).
-    points: (B, n_l, 3) those pc1 points (= pc1 gathered at indices), input frame.
-    indices2 / points2: the same for the frame-2 points of each level (for losses against pc2).
-    sampling: the sampling decisions of this pass; pass it to another forward to sample the same points.
-    """
-
-    flows: list[Tensor]
-    indices: list[Tensor]
-    points: list[Tensor]
-    indices2: list[Tensor] = field(default_factory=list)
-    points2: list[Tensor] = field(default_factory=list)
-    sampling: Sampling | None = None
-
 
 @dataclass
 class _Pyramid:

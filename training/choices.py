@@ -1,0 +1,16 @@
+"""The names of options that configs check, torch-free so that the configs (and ``--help``) load without
+torch: the kNN backends (:mod:`training.knn`), the depth-consistency variants
+(:mod:`training.losses.depth_consistency`) and the orders of the level factors α (:mod:`training.losses.total`)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+KnnBackend = Literal["auto", "kdtree", "torch"]
+BACKENDS: tuple[str, ...] = ("auto", "kdtree", "torch")
+
+DepthVariant = Literal["paper", "released"]
+DEPTH_VARIANTS: tuple[str, ...] = ("paper", "released")
+
+AlphaOrder = Literal["released", "paper"]
+ALPHA_ORDERS: tuple[str, ...] = ("released", "paper")

@@ -1,0 +1,125 @@
+"""The architecture of :class:`~training.model.halflownet.HALFlowNet` as a torch-free dataclass (the
+``--model.*`` flags of ``monoflow-train``; registered as ``"halflownet"`` in :mod:`training.model.registry`).
+Keeps the :class:`~training.model.contract.FlowNetConfig` contract."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline.errors import ConfigError
+from training.choices import BACKENDS
+
+N_LEVELS = 5  # L0..L4; flows come out at L0..L3
+
+
+@dataclass
+class HALFlowConfig:
+    """Architecture of :class:`HALFlowNet`.
+
+    n_points: nominal points per input cloud (what the data pipeline samples); the net accepts any
+        N >= level_points[0].
+    level_points / level_k: points and set-conv neighbours at L0..L4.
+    cost_k_pc2 / cost_k_pc1: neighbours in frame 2 (point-to-patch) and frame 1 (patch-to-patch) of
+        the first cost volume (L2); refine_k replaces cost_k_pc2 in the refinement cost volumes.
+    width_scale: multiplies every hidden width (0.25 for fast tests).
+    sampling: "fps" | "random" (first-N, see module docstring).
+    feature_dim: channels of the per-point input features (3 for RGB; 0 for none).
+    knn_backend: "auto" | "kdtree" | "torch" (see training.knn).
+    upconv_k: neighbours of the set-upconv layers (HALFlowNet: 8).
+    set_conv_pooling: "max" (HALFlowNet) | "attentive".
+    batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
+    center_input: shift both clouds by pc1's mean before the net (the released port does).
+    ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
+        that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
+        false = the paper's per-point flow regressor. A departure from the paper (README).
+    ego_sigma: metres; the smallest residual scale of the head: a point whose flow differs from the
+        fitted ego-motion by this much counts half static, half moving (Cauchy re-weighting and gate).
+    ego_mad_factor: the scale actually used is max(ego_sigma, ego_mad_factor × 1.4826 × the median
+        residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
+        standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
+    ego_iterations: re-weighting rounds of the robust rigid fit.
+    eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
+        training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
+        so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
+        camera clouds, and a LiDAR test cloud's features have other statistics. Training is unchanged.
+    """
+
+    n_points: int = 8192
+    level_points: tuple[int, ...] = (2048, 1024, 256, 64, 16)
+    level_k: tuple[int, ...] = (32, 24, 16, 16, 8)
+    cost_k_pc2: int = 32
+    cost_k_pc1: int = 4
+    refine_k: int = 6
+    width_scale: float = 1.0
+    sampling: str = "fps"
+    feature_dim: int = 3
+    knn_backend: str = "auto"
+    upconv_k: int = 8
+    set_conv_pooling: str = "max"
+    batch_norm: bool = True
+    center_input: bool = True
+    ego_head: bool = False
+    ego_sigma: float = 0.1
+    ego_mad_factor: float = 3.0
+    ego_iterations: int = 4
+    eval_norm_stats: str = "running"
+
+    def __post_init__(self) -> None:
+        self.level_points = tuple(int(n) for n in self.level_points)
+        self.level_k = tuple(int(k) for k in self.level_k)
+        if len(self.level_points) != N_LEVELS or len(self.level_k) != N_LEVELS:
+            raise ConfigError(
+                f"level_points and level_k need {N_LEVELS} entries, got {self.level_points} and {self.level_k}"
+            )
+        pts = (self.n_points, *self.level_points)
+        if any(a <= b for a, b in zip(pts, pts[1:])) or min(pts) < 1:
+            raise ConfigError(f"n_points and level_points must be positive and strictly decreasing, got {pts}")
+        for name in ("cost_k_pc2", "cost_k_pc1", "refine_k", "upconv_k"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if min(self.level_k) < 1:
+            raise ConfigError(f"level_k must be >= 1, got {self.level_k}")
+        if not self.width_scale > 0:
+            raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
+        if self.sampling not in ("fps", "random"):
+            raise ConfigError(f"sampling must be 'fps' or 'random', got {self.sampling!r}")
+        if self.feature_dim < 0:
+            raise ConfigError(f"feature_dim must be >= 0, got {self.feature_dim}")
+        if self.knn_backend not in BACKENDS:
+            raise ConfigError(f"knn_backend must be one of {BACKENDS}, got {self.knn_backend!r}")
+        if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
+            raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
+                              f"{self.ego_mad_factor}, {self.ego_iterations}")
+        if self.eval_norm_stats not in ("running", "input"):
+            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
+        if self.set_conv_pooling not in ("max", "attentive"):
+            raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
+
+    @property
+    def output_points(self) -> tuple[int, ...]:
+        """Points of the output levels L0..L3, finest first (the flows come out there)."""
+        return self.level_points[:N_LEVELS - 1]
+
+    @classmethod
+    def points_fields(cls, n_points: int) -> dict[str, Any]:
+        """``n_points`` and the paper's level sizes scaled to it (:func:`level_points_for`)."""
+        return {"n_points": n_points, "level_points": level_points_for(n_points)}
+
+    def check_for_training(self) -> None:
+        """Every level's set conv must find ``level_k`` neighbours among the points of the level above."""
+        sources = (self.n_points, *self.level_points)  # level l groups neighbours among these points
+        over = [f"level {i}: {k} > {n}" for i, (k, n) in enumerate(zip(self.level_k, sources)) if k > n]
+        if over:
+            raise ConfigError(f"model.level_k larger than the points it picks neighbours from ({'; '.join(over)})")
+
+
+def level_points_for(n_points: int) -> tuple[int, ...]:
+    """The paper's level sizes (2048/1024/256/64/16 for 8192 inputs), scaled to ``n_points``; for small
+    inputs the coarsest level keeps 4 points and each finer level at least twice the next coarser one,
+    so the levels stay strictly decreasing (256 → 64/32/16/8/4). Needs ``n_points >= 128``."""
+    levels = [int(n_points * f) for f in (0.25, 0.125, 1 / 32, 1 / 128, 1 / 512)]
+    levels[4] = max(4, levels[4])
+    for i in range(3, -1, -1):
+        levels[i] = max(levels[i], 2 * levels[i + 1])
+    return tuple(levels)
