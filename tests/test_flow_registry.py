@@ -54,7 +54,8 @@ def test_tiny_net_trains_evaluates_and_runs_the_ablations(tiny_net, world: Path,
     assert len(table["rows"]) == 5 and all(np.isfinite(r["EPE3D"]) for r in table["rows"])
     run = Path(table["variants"][-1]["run"])
     ckpt = torch.load(run / "latest.pt", weights_only=True)
-    assert ckpt["config"]["model_name"] == "tiny" and tuple(ckpt["config"]["model"]["level_points"]) == (128, 64, 32, 16)
+    assert ckpt["config"]["model_name"] == "tiny"
+    assert tuple(ckpt["config"]["model"]["level_points"]) == (128, 64, 32, 16)
     assert set(ckpt["model"]) == {"mlp.0.weight", "mlp.0.bias", "mlp.2.weight", "mlp.2.bias"}
     capsys.readouterr()
 
