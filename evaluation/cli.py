@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
+from evaluation.readers.flags import add_reader_flags, open_split
 from pipeline.errors import ConfigError, run_cli
 
 
@@ -36,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command")
     r = sub.add_parser("run", allow_abbrev=False, help="evaluate checkpoints and baselines on a split")
     r.add_argument("--split", required=True, help="test split folder (FlowNet3D npz, HPLFlowNet, OpenSceneFlow h5)")
-    r.add_argument("--format", default="auto", help="auto | flownet3d | hplflownet | opensceneflow")
+    add_reader_flags(r)  # --format and each format's --<format>.<option> (evaluation/readers/flags.py)
     r.add_argument("--checkpoint", action="append", default=[], help="monoflow-train checkpoint (repeatable)")
     from evaluation.methods import baselines_help
 
@@ -126,7 +127,6 @@ def _run(args) -> int:
 
     from evaluation.methods import NetMethod, make_method
     from evaluation.protocols import run_protocol, summary_rows
-    from evaluation.readers import load_split
     from evaluation.report import markdown_table, write_reports
 
     if args.plots:
@@ -143,7 +143,7 @@ def _run(args) -> int:
     if protocol == "hplflownet" and not args.mapping:
         raise ConfigError("--protocol hplflownet needs --mapping (the KITTI devkit's train_mapping.txt): HPLFlowNet "
                           "scores only the scenes with a raw-data recording")
-    split = load_split(args.split, args.format)
+    split = open_split(args)  # --split in --format, with its --<format>.<option> flags
     if args.max_scenes < 0:
         raise ConfigError(f"--max-scenes must be >= 0, got {args.max_scenes}")
     selection: dict = {"scenes": args.scenes, "split_scenes": len(split)}

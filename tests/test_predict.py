@@ -97,7 +97,9 @@ def test_predict_matches_evaluate_on_synthetic_world(synth_root, tmp_path, flow_
     the same points (the pair's clouds written as a FlowNet3D split)."""
     from evaluation.cli import main as evaluate_main
     from evaluation.predictions import read_predictions
-    from pipeline.synth.sceneflow_export import camera_to_flownet3d
+    from pipeline.axes import FORMAT_AXES
+
+    camera_to_flownet3d = FORMAT_AXES["flownet3d"].from_camera
 
     out = tmp_path / "pred"
     cfg = PredictConfig(input=str(synth_root / "sequences" / "00"), depth="gt", pose="gt",

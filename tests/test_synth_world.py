@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from pipeline import geometry as g
+from pipeline.axes import HPLFLOWNET, LIDAR
 from pipeline.kitti import OdometrySequence, read_depth_png, read_velodyne_bin
 from pipeline.synth import SynthConfig, generate
-from pipeline.synth.sceneflow_export import flownet3d_to_camera, hplflownet_to_camera
 
 CFG = SynthConfig(seed=3, width=160, height=48, n_sequences=1, frames=4, test_frames=3, parked_cars=8,
                   moving_cars=5, lidar_azimuth_step_deg=0.8, test_lidar_azimuth_step_deg=0.6)
@@ -177,9 +177,9 @@ def test_sceneflow_files_round_trip_through_their_axes(world):
     for t in range(CFG.test_frames - 1):
         T = seq.relative_pose(t, t + 1)
         fn = np.load(world / "sceneflow" / "flownet3d" / f"{t:06d}.npz")
-        pos1 = flownet3d_to_camera(fn["pos1"].astype(np.float64))
-        pos2 = flownet3d_to_camera(fn["pos2"].astype(np.float64))
-        gt = flownet3d_to_camera(fn["gt"].astype(np.float64))
+        pos1 = LIDAR.to_camera(fn["pos1"].astype(np.float64))
+        pos2 = LIDAR.to_camera(fn["pos2"].astype(np.float64))
+        gt = LIDAR.to_camera(fn["gt"].astype(np.float64))
         moving = fn["moving"]
         assert len(pos1) > 100 and len(pos2) > 100 and moving.shape == (len(pos1),)
         assert pos1[:, 2].max() < 35.0 and pos2[:, 2].max() < 35.0
@@ -197,8 +197,8 @@ def test_sceneflow_files_round_trip_through_their_axes(world):
             assert np.linalg.norm(gt[moving] - g.static_flow(pos1[moving], T), axis=1).min() > 0.1
         # HPLFlowNet: (−x, −y, z) axes, pc2 = pc1 + flow, ground kept (the reader removes stored y < −1.4)
         hd = world / "sceneflow" / "hplflownet" / f"{t:06d}"
-        pc1 = hplflownet_to_camera(np.load(hd / "pc1.npy").astype(np.float64))
-        pc2 = hplflownet_to_camera(np.load(hd / "pc2.npy").astype(np.float64))
+        pc1 = HPLFLOWNET.to_camera(np.load(hd / "pc1.npy").astype(np.float64))
+        pc2 = HPLFLOWNET.to_camera(np.load(hd / "pc2.npy").astype(np.float64))
         hm = np.load(hd / "moving.npy")
         assert len(pc1) > len(pos1) and hm.shape == (len(pc1),)
         hs = ~hm

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.axes import LIDAR
 from pipeline.synth.config import KITTI_CX, KITTI_CY, KITTI_FX, KITTI_FY, KITTI_SIZE, SynthConfig
 
 #: x offsets t_i (metres) in ``P_i = K [I | (t_i, 0, 0)]`` for cameras 0..3 (KITTI-like baselines).
@@ -19,7 +20,7 @@ CAMERA_X_OFFSETS = (0.0, -0.537, 0.06, -0.473)
 #: velodyne origin in cam0 coordinates (metres): 0.08 m above, 0.27 m behind.
 VELO_IN_CAM0 = (0.0, -0.08, -0.27)
 #: rotation velodyne axes (x fwd, y left, z up) → camera axes (x right, y down, z fwd).
-R_VELO_TO_CAM = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+R_VELO_TO_CAM = LIDAR.matrix
 
 
 @dataclass(frozen=True)

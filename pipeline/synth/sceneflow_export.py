@@ -1,16 +1,17 @@
 """The scene-flow test split, in the two layouts the community's KITTI test sets use.
 
 * FlowNet3D ``kitti_rm_ground``: ``flownet3d/XXXXXX.npz`` with ``pos1``, ``pos2``, ``gt`` (N, 3) in
-  LiDAR-like axes — stored (x, y, z) = (cam_z, −cam_x, −cam_y) — ground removed, camera z < 35 m;
-  ``pos2`` is the next scan (camera-(t+1) frame), not pos1 moved.
+  LiDAR-like axes (:data:`pipeline.axes.LIDAR`: stored (x, y, z) = (cam_z, −cam_x, −cam_y)), ground
+  removed, camera z < 35 m; ``pos2`` is the next scan (camera-(t+1) frame), not pos1 moved.
 * HPLFlowNet ``KITTI_processed_occ_final``: ``hplflownet/XXXXXX/pc1.npy``, ``pc2.npy`` in axes
-  (−cam_x, −cam_y, cam_z), ``pc2 = pc1 + flow`` point to point; ground kept (its reader drops stored
-  y < −1.4 and keeps z < 35).
+  (−cam_x, −cam_y, cam_z) (:data:`pipeline.axes.HPLFLOWNET`), ``pc2 = pc1 + flow`` point to point;
+  ground kept (its reader drops stored y < −1.4 and keeps z < 35).
 
 Both come from the LiDAR scan at t, restricted to points that project into image_2 at t; the flow is
 the generator's ground truth (camera-(t+1) position minus camera-t position, metres). Each pc1 point
 also carries ``moving`` (bool), ``classes`` (int32: 0 background, 1 car — parked or moving, the
 three-way EPE's foreground) and ``instance`` (int32: the world object's index, −1 for none).
+Each layout's axes are :data:`pipeline.axes.FORMAT_AXES`, the table the evaluation readers use too.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.axes import FORMAT_AXES
 from pipeline.synth.writer import frame_name, save_npy, save_npz
 
 MAX_Z = 35.0
@@ -31,24 +33,6 @@ def object_classes(categories: list[str], obj: np.ndarray) -> np.ndarray:
     """Class code (:data:`CLASS_CODES`) of each point from its object index ``obj`` (−1: background)."""
     codes = np.array([FOREGROUND_CATEGORIES.get(c, 0) for c in categories] + [0], dtype=np.int32)
     return codes[obj]
-
-
-def camera_to_flownet3d(p: np.ndarray) -> np.ndarray:
-    """Camera (x right, y down, z fwd) → FlowNet3D axes (x fwd, y left, z up): (z, −x, −y)."""
-    return np.stack([p[..., 2], -p[..., 0], -p[..., 1]], axis=-1)
-
-
-def flownet3d_to_camera(q: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`camera_to_flownet3d`: camera (x, y, z) = (−q_y, −q_z, q_x)."""
-    return np.stack([-q[..., 1], -q[..., 2], q[..., 0]], axis=-1)
-
-
-def camera_to_hplflownet(p: np.ndarray) -> np.ndarray:
-    """Camera → HPLFlowNet axes (−x, −y, z) (its own inverse)."""
-    return np.stack([-p[..., 0], -p[..., 1], p[..., 2]], axis=-1)
-
-
-hplflownet_to_camera = camera_to_hplflownet
 
 
 @dataclass
@@ -73,16 +57,18 @@ def write_pair(root: Path, index: int, scan_t: ScanGT, scan_t1: ScanGT) -> tuple
     keep1 = ~scan_t.ground & (scan_t.points[:, 2] < MAX_Z)
     keep2 = ~scan_t1.ground & (scan_t1.points[:, 2] < MAX_Z)
     labels = {k: getattr(scan_t, k).astype(np.int32) for k in ("classes", "instance") if getattr(scan_t, k) is not None}
+    fn3d = FORMAT_AXES["flownet3d"]
     save_npz(
         root / "flownet3d" / f"{name}.npz",
-        pos1=camera_to_flownet3d(scan_t.points[keep1]).astype(np.float32),
-        pos2=camera_to_flownet3d(scan_t1.points[keep2]).astype(np.float32),
-        gt=camera_to_flownet3d(scan_t.flow[keep1]).astype(np.float32),
+        pos1=fn3d.from_camera(scan_t.points[keep1]).astype(np.float32),
+        pos2=fn3d.from_camera(scan_t1.points[keep2]).astype(np.float32),
+        gt=fn3d.from_camera(scan_t.flow[keep1]).astype(np.float32),
         moving=scan_t.moving[keep1],
         **{k: v[keep1] for k, v in labels.items()},
     )
-    pc1 = camera_to_hplflownet(scan_t.points)
-    pc2 = camera_to_hplflownet(scan_t.points + scan_t.flow)
+    hpl = FORMAT_AXES["hplflownet"]
+    pc1 = hpl.from_camera(scan_t.points)
+    pc2 = hpl.from_camera(scan_t.points + scan_t.flow)
     d = root / "hplflownet" / name
     save_npy(d / "pc1.npy", pc1.astype(np.float32))
     save_npy(d / "pc2.npy", pc2.astype(np.float32))
