@@ -3,7 +3,7 @@
 Per block of consecutive pairs, stage one's :class:`pipeline.preprocess.BlockProcessor` computes every
 frame's depth once, every pair's pose, the scale factor (carried over frames without a road plane) and
 the filtered pixels; the clouds are rebuilt with the cache's own functions (``points_from_depth``,
-``static_flow_of``), so they equal what ``monoflow-preprocess`` would cache for the same options.
+``pipeline.geometry.static_flow``), so they equal what ``monoflow-preprocess`` would cache for the same options.
 
 The flow net sees each pair exactly as ``monoflow-evaluate run --protocol full`` shows a scene: both
 clouds sampled to ``n_points`` by :func:`evaluation.protocols.prepare_scene` (seeded by ``sample_seed`` and
@@ -115,7 +115,8 @@ def preprocess_config(cfg: PredictConfig, root: Path, sequence: str, camera: str
 
 def pairs_of_block(block, sequence: str) -> list[PairOutput]:
     """The clouds of a stage-one :class:`BlockRecord`, rebuilt with the cache's functions (flow not yet set)."""
-    from pipeline.cache.points import colours_at, pixel_uv, points_from_depth, static_flow_of
+    from pipeline.cache.points import colours_at, pixel_uv, points_from_depth
+    from pipeline.geometry import static_flow
 
     frames = {f.frame_id: f for f in block.frames}
     out = []
@@ -128,7 +129,7 @@ def pairs_of_block(block, sequence: str) -> list[PairOutput]:
             name=pair_name(sequence, p.frame_t, p.frame_t1), frame_t=p.frame_t, frame_t1=p.frame_t1,
             pc1=pc1, rgb1=colours_at(a.rgb, p.idx1), uv1=pixel_uv(p.idx1, W),
             pc2=pc2, rgb2=colours_at(b.rgb, p.idx2), uv2=pixel_uv(p.idx2, W),
-            flow=np.zeros_like(pc1), static_flow=static_flow_of(pc1, p.T), T=np.asarray(p.T, dtype=np.float64),
+            flow=np.zeros_like(pc1), static_flow=static_flow(pc1, p.T, as_float32=True), T=np.asarray(p.T, dtype=np.float64),
             scale=float(p.scale), carried=False, gt_flow=p.gt_flow))
     return out
 
