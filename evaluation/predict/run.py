@@ -303,7 +303,7 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
     """Run ``monoflow-predict`` as configured (module docstring); MonoflowError on bad input."""
     from evaluation.predict.inputs import default_name, prepare_input
     from pipeline.preprocess import BlockProcessor, DeferBlock, open_sequences, plan_blocks, sequence_median_factor
-    from pipeline.scale import scale_consistency_problems
+    from pipeline.scale import announce_scale_problems
 
     start = time.perf_counter()
     cfg.validate()
@@ -311,11 +311,7 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
         from evaluation.pictures import require_matplotlib
 
         require_matplotlib()  # a missing optional extra is reported before any work
-    warnings = scale_consistency_problems(cfg.depth, cfg.pose, cfg.scale)
-    if warnings and cfg.scale.refuse_non_metric:
-        raise ConfigError(warnings[0] + " (--scale.refuse_non_metric true)")
-    for w in warnings:
-        print(f"WARNING: {w}", file=sys.stderr)
+    warnings = announce_scale_problems(cfg.depth, cfg.pose, cfg.scale)
     predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed)  # fails early on a bad file
     name = cfg.name or default_name(cfg.input)
     out = Path(cfg.out)

@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from pipeline.errors import ConfigError, InputError
+from pipeline.errors import InputError
 from pipeline.preprocess.block import BlockProcessor, BlockResult
 from pipeline.preprocess.config import PreprocessConfig
 from pipeline.preprocess.identity import cache_config, cache_source
@@ -22,7 +22,7 @@ from pipeline.preprocess.planning import BlockPlan, plan_blocks, shard_plans
 from pipeline.preprocess.sequences import open_sequences
 from pipeline.preprocess.serial import process_blocks
 from pipeline.preprocess.summary import PreprocessSummary, RunTimes, summarise, write_run_info
-from pipeline.scale import scale_consistency_problems
+from pipeline.scale import announce_scale_problems
 
 
 def run_preprocess(
@@ -34,7 +34,7 @@ def run_preprocess(
 
     start = time.perf_counter()
     config.validate()
-    run_warnings = _scale_warnings(config)
+    run_warnings = announce_scale_problems(config.depth, config.pose, config.scale)
     sequences = open_sequences(config)
     plans = plan_blocks({name: seq.frames for name, seq in sequences.items()}, config.block_size)
     if not plans:
@@ -65,16 +65,6 @@ def run_preprocess(
     manifest_written = _finalize_when_complete(writer, plans)
     return summarise(config, writer, mine, len(mine) - len(todo), report.results,
                      run_warnings + sorted(report.shouted)[:3], times, manifest_written)
-
-
-def _scale_warnings(config: PreprocessConfig) -> list[str]:
-    """Warnings about options whose clouds cannot be metric, shouted once; an error with refuse_non_metric."""
-    warnings = scale_consistency_problems(config.depth, config.pose, config.scale)
-    if warnings and config.scale.refuse_non_metric:
-        raise ConfigError(warnings[0] + " (--scale.refuse_non_metric true)")
-    for w in warnings:
-        _shout(w)
-    return warnings
 
 
 def _finalize_when_complete(writer, plans: list[BlockPlan]) -> bool:
