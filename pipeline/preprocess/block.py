@@ -55,15 +55,15 @@ class InferredBlock:
     """A block after reading and the nets (what :meth:`BlockProcessor.finish` needs)."""
 
     plan: BlockPlan
-    hw: tuple[int, int]
-    K: np.ndarray
-    positions: list[int]
-    where: dict[int, int]
-    images: np.ndarray
-    depths: np.ndarray
-    Ts: np.ndarray
-    depth_images: int
-    pose_pairs: int
+    hw: tuple[int, int]  # working size (H, W), pixels
+    K: np.ndarray  # (3, 3) intrinsics at the working size
+    positions: list[int]  # the block's frames, as positions in the sequence, ascending
+    where: dict[int, int]  # position -> row of images / depths
+    images: np.ndarray  # (F, H, W, 3) uint8 RGB
+    depths: np.ndarray  # (F, H, W) depth as the source gave it (before the scale factor), 0 = invalid
+    Ts: np.ndarray  # (P, 4, 4) float64 T_{t→t+1} per pair, as the source gave it
+    depth_images: int  # depth-net images run for this block
+    pose_pairs: int  # pose-net pairs run for this block
     seconds: dict[str, float]
 
 
