@@ -52,11 +52,15 @@ class StaticPoseMethod:
     needs_pose: bool = True
 
     def __call__(self, pc1, pc2, color1=None, color2=None, pose: np.ndarray | None = None) -> np.ndarray:
-        from evaluation.baselines.static import static_flow
+        from evaluation.baselines.base import as_cloud
+        from pipeline.geometry import static_flow
 
         if pose is None:
             raise ConfigError("the 'static' baseline needs a split with poses (T_1→2 per scene); this one has none")
-        return static_flow(pc1, pose)
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape != (4, 4):
+            raise ValueError(f"pose must have shape (4, 4), got {pose.shape}")
+        return static_flow(as_cloud("points", pc1), pose, as_float32=True)
 
 
 class NetMethod:

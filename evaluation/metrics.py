@@ -29,8 +29,9 @@ computed where the split marks them:
   includes the camera's own motion (KITTI's convention), so the denominator is the total observed
   motion of those points, not the object's motion alone as on ego-compensated Argoverse-2 data.
 * **distance bands** (needs ``depth``, camera z of the scored points in metres): the metrics on points
-  with z in [0, 20), [20, 35) and [35, ∞) m (``z0-20``, ``z20-35``, ``z35+``), each present only where a
-  scene has such points; monocular depth error grows with range.
+  with z in [0, 20), [20, 35) and [35, ∞) m (``z0-20``, ``z20-35``, ``z35+``; 35 m is the far limit,
+  :data:`pipeline.filters.FAR_LIMIT_M`), each present only where a scene has such points; monocular depth
+  error grows with range.
 """
 
 from __future__ import annotations
@@ -40,10 +41,14 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.filters import FAR_LIMIT_M
+
 METRIC_NAMES: tuple[str, ...] = ("EPE3D", "Acc3DS", "Acc3DR", "Outliers3D")
 THREEWAY: tuple[str, ...] = ("bg_static", "fg_static", "fg_dynamic")
-BANDS: tuple[tuple[str, float, float], ...] = (("z0-20", 0.0, 20.0), ("z20-35", 20.0, 35.0),
-                                               ("z35+", 35.0, float("inf")))
+#: (name, lower, upper) camera-z bands, metres: near, up to the far limit, and beyond it (only protocols that
+#: keep far points have any there); names ``z0-20``, ``z20-35``, ``z35+``.
+BANDS: tuple[tuple[str, float, float], ...] = (("z0-20", 0.0, 20.0), (f"z20-{FAR_LIMIT_M:g}", 20.0, FAR_LIMIT_M),
+                                               (f"z{FAR_LIMIT_M:g}+", FAR_LIMIT_M, float("inf")))
 SUBSETS: tuple[str, ...] = ("static", "moving", *THREEWAY, *(b[0] for b in BANDS))
 OPTIONAL_METRICS: tuple[str, ...] = ("EPE3D_norm",)  # aggregated where every member has it
 REL_EPS = 1e-4

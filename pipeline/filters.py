@@ -19,6 +19,15 @@ from pipeline.errors import ConfigError
 #: The order in which :mod:`pipeline.pairs` applies the filters (and names them in its stats).
 FILTER_NAMES = ("ground", "far", "lidar", "occlusion")
 
+FAR_LIMIT_M = 35.0
+"""The far limit, metres of camera z (x right, y down, z forward): points with ``z >= 35`` are dropped.
+
+One idea used in two places: stage one's sky/far filter (the default of :attr:`FilterConfig.far_max_z` and
+:func:`far_keep`, the paper's value) and the KITTI scene-flow test protocols' depth limit (FlowNet3D / FLOT
+keep camera z < 35 m, HPLFlowNet's ``DEPTH_THRESHOLD = 35``; ``docs/evaluation-protocols.md``) — the paper
+trains on the range the benchmark scores. The evaluation's distance bands split there too
+(:data:`evaluation.metrics.BANDS`)."""
+
 #: Velodyne → image_2 camera of KITTI's standard mount, used when a calibration has no ``Tr``:
 #: velodyne x forward / y left / z up → camera x right / y down / z forward; the scanner sits
 #: ≈ 0.08 m above and 0.27 m behind cam0, and a cam0 point has x ≈ +0.06 m in image_2
@@ -52,7 +61,7 @@ class FilterConfig:
     ground: bool = field(default=True, metadata={"help": "remove ground points (y >= ground_max_y)"})
     ground_max_y: float = field(default=1.15, metadata={"help": "metres below the camera centre (y down)"})
     far: bool = field(default=True, metadata={"help": "remove sky / far points (z >= far_max_z)"})
-    far_max_z: float = field(default=35.0, metadata={"help": "metres along the optical axis"})
+    far_max_z: float = field(default=FAR_LIMIT_M, metadata={"help": "metres along the optical axis"})
     lidar: bool = field(default=True, metadata={"help": "remove what an HDL-64E at the velodyne pose cannot see"})
     lidar_max_elevation_deg: float = field(default=2.0, metadata={"help": "upper edge of the scanner's fan"})
     lidar_min_elevation_deg: float = field(default=-24.8, metadata={"help": "lower edge of the scanner's fan"})
@@ -91,7 +100,7 @@ def ground_keep(points: np.ndarray, max_y: float = 1.15) -> np.ndarray:
     return points[..., 1] < max_y
 
 
-def far_keep(points: np.ndarray, max_z: float = 35.0) -> np.ndarray:
+def far_keep(points: np.ndarray, max_z: float = FAR_LIMIT_M) -> np.ndarray:
     """Keep points nearer than ``max_z`` metres along the optical axis: ``z < max_z``."""
     return points[..., 2] < max_z
 
@@ -180,6 +189,7 @@ def occlusion_keep(
 
 
 __all__ = [
+    "FAR_LIMIT_M",
     "FILTER_NAMES",
     "FilterConfig",
     "KITTI_DEFAULT_VELO_TO_CAM",

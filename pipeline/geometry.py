@@ -129,8 +129,22 @@ def transform_points(T: Array, points: Array) -> Array:
     return points @ _transpose_last(R) + t[..., None, :]
 
 
-def static_flow(points: Array, T_1to2: Array) -> Array:
-    """Flow that the camera motion alone explains: ``(R p + t) − p`` (…, N, 3), metres, camera-1 frame."""
+def static_flow(points: Array, T_1to2: Array, *, as_float32: bool = False) -> Array:
+    """The flow the camera's motion alone explains (a rigid scene): ``sf_s = (R p + t) − p`` (the paper's eq. 11).
+
+    ``points`` (…, N, 3): camera-1 frame (x right, y down, z forward), metres. ``T_1to2`` (…, 4, 4) =
+    ``[R | t]`` is the *relative* pose that maps camera-1 coordinates to camera-2 coordinates (``p2 = R p1 +
+    t``; for a pair (t, t+1), ``T_{t→t+1} = inv(Pose_{t+1}) · Pose_t`` of camera-to-world poses, see
+    :func:`relative_pose`), not a camera-to-world pose. Returns (…, N, 3) metres: a static point's position in
+    camera 2's coordinates minus its position in camera 1's.
+
+    numpy or torch like every function here. ``as_float32=True`` (numpy): inputs taken as float64, result
+    rounded once to float32 — the precision stage one's cache writer, the cache reader and verifier, the
+    prediction export and the evaluation's static-pose method all use, so their static flows agree bit for bit.
+    """
+    if as_float32:
+        p64 = np.asarray(points, dtype=np.float64)
+        return (transform_points(np.asarray(T_1to2, dtype=np.float64), p64) - p64).astype(np.float32)
     return transform_points(T_1to2, points) - points
 
 
@@ -186,13 +200,19 @@ def mat_to_pose_vec(T: Array) -> Array:
 
 
 def rotation_angle(R: Array) -> Array:
-    """Rotation angle of R (…, 3, 3) in radians, in [0, π]."""
+    """Rotation angle of R (…, 3, 3) in radians, in [0, π].
+
+    ``atan2(sin, cos)`` with ``sin`` = half the norm of R's skew part and ``cos = (trace − 1) / 2``: accurate to
+    rounding at every angle, where ``arccos`` of the trace alone turns one ulp of the trace into ≈ 1e-8 rad
+    near zero.
+    """
     lib = _lib(R)
-    tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
-    c = (tr - 1.0) / 2.0
-    if lib is np:
-        return np.arccos(np.clip(c, -1.0, 1.0))
-    return lib.acos(c.clamp(-1.0, 1.0))
+    sx = R[..., 2, 1] - R[..., 1, 2]
+    sy = R[..., 0, 2] - R[..., 2, 0]
+    sz = R[..., 1, 0] - R[..., 0, 1]
+    sin = 0.5 * lib.sqrt(sx * sx + sy * sy + sz * sz)
+    cos = (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0) / 2.0
+    return np.arctan2(sin, cos) if lib is np else lib.atan2(sin, cos)
 
 
 # --------------------------------------------------------------------------- pixels <-> points

@@ -17,6 +17,7 @@ plane fit fails). Camera frame: x right, y down, z forward; depth is z in the ne
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -219,6 +220,17 @@ def scale_consistency_problems(depth: str, pose: str, config: ScaleConfig) -> li
     if pose == "gt" and scales_t and config.mode != "none":
         problems.append("the dataset's poses are metric but --scale.scale_translation true multiplies their "
                         "translations by the depth factor: depth and pose scales disagree")
+    return problems
+
+
+def announce_scale_problems(depth: str, pose: str, config: ScaleConfig) -> list[str]:
+    """:func:`scale_consistency_problems`, said before any work: with ``refuse_non_metric`` a ConfigError
+    naming the first, else one ``WARNING:`` line each on stderr (the run goes on). Returns the problems."""
+    problems = scale_consistency_problems(depth, pose, config)
+    if problems and config.refuse_non_metric:
+        raise ConfigError(problems[0] + " (--scale.refuse_non_metric true)")
+    for problem in problems:
+        print(f"WARNING: {problem}", file=sys.stderr)
     return problems
 
 

@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cache.points import canonical_depth, points_from_depth, static_flow_of
+from pipeline.cache.points import canonical_depth, points_from_depth
 from pipeline.cache.records import BlockRecord, FrameRecord, PairRecord
-from pipeline.geometry import se3_inverse
+from pipeline.filters import FilterConfig, far_keep, ground_keep
+from pipeline.geometry import se3_inverse, static_flow
 
 CAMERA_HEIGHT = 1.65
 SPEED = 1.0  # metres per frame along the road
@@ -120,11 +121,13 @@ def render(
 
 
 def keep_mask(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """The cache tests' stand-in for stage one's filters: valid, above the ground (y < 1.15 m), z < 35 m."""
+    """The cache tests' stand-in for stage one's filters: valid depth, then stage one's ground and far filters
+    (:mod:`pipeline.filters`) at their defaults (y < 1.15 m, z < 35 m); no LiDAR-range or occlusion check."""
     H, W = depth.shape
     idx = np.arange(H * W)
     p = points_from_depth(depth, idx, K)
-    return ((p[:, 2] > 0) & (p[:, 1] < 1.15) & (p[:, 2] < 35.0)).reshape(H, W)
+    filters = FilterConfig()
+    return ((p[:, 2] > 0) & ground_keep(p, filters.ground_max_y) & far_keep(p, filters.far_max_z)).reshape(H, W)
 
 
 def street_block(
@@ -159,7 +162,7 @@ def street_block(
             mov = movers[t].reshape(-1)[idx1]
             # a moving point's world displacement, seen in camera t+1, added to the static motion
             m_cam = camera_pose(t + 1)[:3, :3].T @ MOVER_SPEED
-            gt = (static_flow_of(pc1, T) + mov[:, None] * m_cam.astype(np.float32)).astype(np.float32)
+            gt = (static_flow(pc1, T, as_float32=True) + mov[:, None] * m_cam.astype(np.float32)).astype(np.float32)
         stats = {"pixels": height * width, "valid": int((by_id[t].depth > 0).sum()), "kept": int(idx1.size)}
         pair_records.append(PairRecord(t, t + 1, idx1, idx2, T, 1.0, stats, gt, mov))
     return BlockRecord(sequence=sequence, block_index=block_index, K=K, frames=frames, pairs=pair_records)

@@ -73,7 +73,8 @@ def render_panels(frame: int, seq_offset: float, K: np.ndarray, height: int = HE
 def panels_block(sequence: str, block_index: int, seq_offset: float, pairs: int = PAIRS_PER_BLOCK,
                  height: int = HEIGHT, width: int = WIDTH):
     """Block ``block_index`` of a panels sequence: pairs (t, t+1) for t = block_index·pairs … + pairs − 1."""
-    from pipeline.cache import BlockRecord, FrameRecord, PairRecord, canonical_depth, points_from_depth, static_flow_of
+    from pipeline.cache import BlockRecord, FrameRecord, PairRecord, canonical_depth, points_from_depth
+    from pipeline.geometry import static_flow
 
     K = panels_intrinsics(height, width)
     ids = list(range(block_index * pairs, block_index * pairs + pairs + 1))
@@ -89,7 +90,7 @@ def panels_block(sequence: str, block_index: int, seq_offset: float, pairs: int 
     for t in ids[:-1]:
         pc1 = points_from_depth(frames[t - ids[0]].depth, every, K)
         mov = moving[t]
-        gt = (static_flow_of(pc1, T) + mov[:, None] * MOVER_STEP.astype(np.float32)).astype(np.float32)
+        gt = (static_flow(pc1, T, as_float32=True) + mov[:, None] * MOVER_STEP.astype(np.float32)).astype(np.float32)
         pair_records.append(PairRecord(t, t + 1, every, every, T, 1.0, {"kept": int(every.size)}, gt, mov))
     return BlockRecord(sequence=sequence, block_index=block_index, K=K, frames=frames, pairs=pair_records)
 

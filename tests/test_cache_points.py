@@ -18,7 +18,6 @@ from pipeline.cache.points import (
     pixel_uv,
     points_from_depth,
     quantize_depth,
-    static_flow_of,
 )
 from pipeline.geometry import static_flow
 
@@ -85,7 +84,7 @@ def test_colours_and_static_flow():
     T = np.eye(4)
     T[:3, 3] = [0.5, 0.0, -1.0]
     p = np.array([[1.0, 2.0, 3.0]], np.float32)
-    sf = static_flow_of(p, T)
+    sf = static_flow(p, T, as_float32=True)
     assert sf.dtype == np.float32
     assert sf.tolist() == [[0.5, 0.0, -1.0]]
     assert np.array_equal(sf, static_flow(p.astype(np.float64), T).astype(np.float32))

@@ -11,16 +11,16 @@ from evaluation.baselines import (
     FGRConfig,
     ICPBaseline,
     ICPConfig,
-    StaticPoseBaseline,
     ZeroFlowBaseline,
     compute_fpfh,
     fast_global_registration,
     icp,
-    static_flow,
 )
 from evaluation.baselines.base import kabsch, rotation_from_vector, transform_error
 from evaluation.baselines.fpfh import FEATURE_DIM, pair_features, point_spacing
 from evaluation.baselines.normals import estimate_normals
+from evaluation.methods import StaticPoseMethod
+from pipeline.geometry import static_flow
 
 # ------------------------------------------------------------------------------------------------
 # a structured synthetic scene in camera axes (x right, y down, z forward): road, two walls, boxes
@@ -96,12 +96,12 @@ def test_zero_and_static_flow_by_hand() -> None:
     # p = (1, 0, 0): R p = (0, 0, −1), + t = (0, 0, 0), flow = (−1, 0, 0)
     # p = (0, 2, 5): R p = (5, 2, 0),  + t = (5, 2, 1), flow = (5, 0, −4)
     expected = np.array([[-1.0, 0.0, 0.0], [5.0, 0.0, -4.0]])
-    np.testing.assert_allclose(static_flow(pts, pose), expected, atol=1e-6)
-    base = StaticPoseBaseline(pose)
+    np.testing.assert_allclose(static_flow(pts, pose, as_float32=True), expected, atol=1e-6)
+    base = StaticPoseMethod()
     assert isinstance(base, Baseline)
-    np.testing.assert_allclose(base(pts, np.zeros((7, 3))), expected, atol=1e-6)
+    np.testing.assert_allclose(base(pts, np.zeros((7, 3)), pose=pose), expected, atol=1e-6)
     with pytest.raises(ValueError, match="pose"):
-        static_flow(pts, np.eye(3))
+        base(pts, pts, pose=np.eye(3))
 
 
 @pytest.mark.parametrize("seed", range(8))

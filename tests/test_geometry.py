@@ -82,6 +82,23 @@ def test_se3_inverse_and_static_flow():
     Tt = np.eye(4)
     Tt[:3, 3] = [0.1, 0.0, -1.2]
     np.testing.assert_allclose(g.static_flow(p, Tt), np.tile([0.1, 0.0, -1.2], (2, 1)))
+    # as_float32: float64 arithmetic, one rounding to float32 (the cache's and the evaluation's precision)
+    sf = g.static_flow(p.astype(np.float32), T, as_float32=True)
+    p64 = p.astype(np.float32).astype(np.float64)
+    assert sf.dtype == np.float32 and np.array_equal(sf, g.static_flow(p64, T).astype(np.float32))
+    # torch, batched: the same flow
+    pt = torch.tensor(np.stack([p, 2 * p]))
+    Tb = torch.tensor(np.stack([T, Tt]))
+    np.testing.assert_allclose(g.static_flow(pt, Tb).numpy()[1], g.static_flow(2 * p, Tt), atol=1e-12)
+
+
+def test_rotation_angle_is_exact_near_zero_and_agrees_for_torch():
+    for deg in (1e-9, 1e-3, 30.0, 179.0):
+        a = np.radians(deg)
+        R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        assert abs(g.rotation_angle(R) - a) <= 8 * np.finfo(np.float64).eps * max(a, 1.0)
+        assert abs(float(g.rotation_angle(torch.tensor(R))) - a) <= 8 * np.finfo(np.float64).eps * max(a, 1.0)
+    assert g.rotation_angle(np.eye(3)) == 0.0
 
 
 def test_projection_offset_of_colour_camera(shared_data):

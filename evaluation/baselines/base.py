@@ -11,6 +11,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from pipeline.geometry import rotation_angle
+
 
 @runtime_checkable
 class Baseline(Protocol):
@@ -118,14 +120,10 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) 
 def transform_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(rotation error in degrees, translation error in metres) between two 4×4 transforms.
 
-    The angle of ``R_truth⁻¹ R_estimate`` is ``atan2(sin, cos)`` with ``sin`` from its skew part and
-    ``cos`` from its trace: accurate to rounding at every angle, where ``arccos`` of the trace alone turns
-    one ulp of the trace into ≈1e-6° near zero.
+    The rotation error is the angle of ``R_truth⁻¹ R_estimate`` (:func:`pipeline.geometry.rotation_angle`,
+    accurate to rounding at every angle).
     """
     delta = np.linalg.inv(np.asarray(truth, np.float64)) @ np.asarray(estimate, np.float64)
-    r = delta[:3, :3]
-    sin = 0.5 * np.linalg.norm([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    cos = (np.trace(r) - 1.0) / 2.0
-    rot_deg = float(np.degrees(np.arctan2(sin, cos)))
+    rot_deg = float(np.degrees(rotation_angle(delta[:3, :3])))
     trans = float(np.linalg.norm(np.asarray(estimate)[:3, 3] - np.asarray(truth)[:3, 3]))
     return rot_deg, trans

@@ -3,7 +3,7 @@
 Per block of consecutive pairs, stage one's :class:`pipeline.preprocess.BlockProcessor` computes every
 frame's depth once, every pair's pose, the scale factor (carried over frames without a road plane) and
 the filtered pixels; the clouds are rebuilt with the cache's own functions (``points_from_depth``,
-``static_flow_of``), so they equal what ``monoflow-preprocess`` would cache for the same options.
+``pipeline.geometry.static_flow``), so they equal what ``monoflow-preprocess`` would cache for the same options.
 
 The flow net sees each pair exactly as ``monoflow-evaluate run --protocol full`` shows a scene: both
 clouds sampled to ``n_points`` by :func:`evaluation.protocols.prepare_scene` (seeded by ``sample_seed`` and
@@ -115,7 +115,8 @@ def preprocess_config(cfg: PredictConfig, root: Path, sequence: str, camera: str
 
 def pairs_of_block(block, sequence: str) -> list[PairOutput]:
     """The clouds of a stage-one :class:`BlockRecord`, rebuilt with the cache's functions (flow not yet set)."""
-    from pipeline.cache.points import colours_at, pixel_uv, points_from_depth, static_flow_of
+    from pipeline.cache.points import colours_at, pixel_uv, points_from_depth
+    from pipeline.geometry import static_flow
 
     frames = {f.frame_id: f for f in block.frames}
     out = []
@@ -128,7 +129,7 @@ def pairs_of_block(block, sequence: str) -> list[PairOutput]:
             name=pair_name(sequence, p.frame_t, p.frame_t1), frame_t=p.frame_t, frame_t1=p.frame_t1,
             pc1=pc1, rgb1=colours_at(a.rgb, p.idx1), uv1=pixel_uv(p.idx1, W),
             pc2=pc2, rgb2=colours_at(b.rgb, p.idx2), uv2=pixel_uv(p.idx2, W),
-            flow=np.zeros_like(pc1), static_flow=static_flow_of(pc1, p.T), T=np.asarray(p.T, dtype=np.float64),
+            flow=np.zeros_like(pc1), static_flow=static_flow(pc1, p.T, as_float32=True), T=np.asarray(p.T, dtype=np.float64),
             scale=float(p.scale), carried=False, gt_flow=p.gt_flow))
     return out
 
@@ -302,7 +303,7 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
     """Run ``monoflow-predict`` as configured (module docstring); MonoflowError on bad input."""
     from evaluation.predict.inputs import default_name, prepare_input
     from pipeline.preprocess import BlockProcessor, DeferBlock, open_sequences, plan_blocks, sequence_median_factor
-    from pipeline.scale import scale_consistency_problems
+    from pipeline.scale import announce_scale_problems
 
     start = time.perf_counter()
     cfg.validate()
@@ -310,11 +311,7 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
         from evaluation.pictures import require_matplotlib
 
         require_matplotlib()  # a missing optional extra is reported before any work
-    warnings = scale_consistency_problems(cfg.depth, cfg.pose, cfg.scale)
-    if warnings and cfg.scale.refuse_non_metric:
-        raise ConfigError(warnings[0] + " (--scale.refuse_non_metric true)")
-    for w in warnings:
-        print(f"WARNING: {w}", file=sys.stderr)
+    warnings = announce_scale_problems(cfg.depth, cfg.pose, cfg.scale)
     predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed)  # fails early on a bad file
     name = cfg.name or default_name(cfg.input)
     out = Path(cfg.out)

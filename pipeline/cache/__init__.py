@@ -19,7 +19,6 @@ from pipeline.cache.points import (
     pixel_uv,
     points_from_depth,
     quantize_depth,
-    static_flow_of,
 )
 from pipeline.cache.reader import CacheReader, PairSample
 from pipeline.cache.records import BlockRecord, FrameRecord, PairRecord
@@ -46,6 +45,5 @@ __all__ = [
     "points_from_depth",
     "quantize_depth",
     "remove_stale_tmp",
-    "static_flow_of",
     "verify",
 ]

@@ -17,9 +17,9 @@ from pipeline.cache.points import (
     dequantize_depth,
     points_from_depth,
     quantize_depth,
-    static_flow_of,
 )
 from pipeline.cache.records import BlockRecord
+from pipeline.geometry import static_flow as static_flow_from_pose
 
 DEPTH_ENCODING = {"dtype": "uint16", "steps_per_metre": DEPTH_STEPS_PER_METRE, "invalid": 0}
 
@@ -129,7 +129,7 @@ def encode_block(rec: BlockRecord, config_hash: str, code_version: dict) -> Enco
                 raise _fail(rec, f"pair {j}: gt_flow is not finite")
             # the reader's static flow, bit for bit: from the stored depth, as CacheReader computes it
             pc1 = points_from_depth(dequantize_depth(depth[position[int(p.frame_t)]]), a, K)
-            gts.append(gt_flow_to_ulp_offsets(g, static_flow_of(pc1, Tj)))
+            gts.append(gt_flow_to_ulp_offsets(g, static_flow_from_pose(pc1, Tj, as_float32=True)))
         if has_mov:
             m = np.asarray(p.moving)
             if m.shape != (a.size,) or m.dtype != np.bool_:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import backproject, static_flow
+from pipeline.geometry import backproject
 
 DEPTH_STEPS_PER_METRE = 256
 """Stored depth unit: 1/256 m (KITTI's depth-png convention)."""
@@ -90,11 +90,3 @@ def colours_at(rgb: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 colours of the pixels ``idx`` of a (H, W, 3) image."""
     rgb = np.asarray(rgb)
     return rgb.reshape(-1, rgb.shape[-1])[np.asarray(idx)].astype(np.uint8, copy=False)
-
-
-def static_flow_of(points: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 static flow ``(R p + t) − p`` of camera-t points under ``T_{t→t+1}``, in float64.
-
-    The reader computes the cached pairs' static flow with exactly this call.
-    """
-    return static_flow(np.asarray(points, dtype=np.float64), np.asarray(T, dtype=np.float64)).astype(np.float32)

@@ -6,7 +6,7 @@ pixels in frames t and t+1 (ragged arrays + offsets). A sample is rebuilt here:
 
 * ``pc1 = points_from_depth(depth_t, idx1, K)``, ``rgb1`` = RGB at idx1, ``uv1`` = (u, v) of idx1;
   pc2 / rgb2 / uv2 likewise from frame t+1 and idx2 (:mod:`pipeline.cache.points`);
-* ``static_flow = static_flow_of(pc1, T)`` with the stored float64 ``T_{t→t+1}``;
+* ``static_flow = pipeline.geometry.static_flow(pc1, T, as_float32=True)`` with the stored float64 ``T_{t→t+1}``;
 * ground-truth flow, when present, from its stored int32 ulp offsets relative to that static flow;
 
 exactly the calls stage one makes, so the clouds equal stage one's bit for bit. Only blocks listed in
@@ -27,8 +27,9 @@ from pipeline.cache.encode import gt_flow_from_ulp_offsets
 from pipeline.cache.integrity import check_block_files, read_block_attrs
 from pipeline.cache.layout import FORMAT_NAME, MANIFEST_NAME, SCHEMA_VERSION
 from pipeline.cache.manifest import read_manifest
-from pipeline.cache.points import dequantize_depth, pixel_uv, points_at_pixels, static_flow_of
+from pipeline.cache.points import dequantize_depth, pixel_uv, points_at_pixels
 from pipeline.errors import InputError
+from pipeline.geometry import static_flow
 
 
 @dataclass
@@ -228,7 +229,7 @@ class CacheReader:
         # == points_from_depth(depth, idx, K), with uv computed once
         pc1 = points_at_pixels(depth1.reshape(-1)[idx1], uv1, K64)
         pc2 = points_at_pixels(depth2.reshape(-1)[idx2], uv2, K64)
-        sf = static_flow_of(pc1, T64)
+        sf = static_flow(pc1, T64, as_float32=True)
         return PairSample(
             pc1=pc1,
             rgb1=np.ascontiguousarray(planes[0].reshape(3, -1)[:, idx1].T),

@@ -15,8 +15,9 @@ import numpy as np
 from pipeline.cache.encode import gt_flow_from_ulp_offsets
 from pipeline.cache.layout import MANIFEST_NAME, block_relpath
 from pipeline.cache.manifest import find_tmp, inspect_block, read_manifest, scan_blocks
-from pipeline.cache.points import dequantize_depth, points_from_depth, static_flow_of
+from pipeline.cache.points import dequantize_depth, points_from_depth
 from pipeline.errors import InputError
+from pipeline.geometry import static_flow
 
 
 @dataclass
@@ -87,7 +88,8 @@ def _check_block_data(root: Path, entry: dict, height: int, width: int) -> tuple
         for j, (ft, _) in enumerate(a["pair_frames"]):
             idx = data["idx1"][off[j] : off[j + 1]]
             pc1 = points_from_depth(dequantize_depth(data["depth"][pos[int(ft)]]), idx, data["K"])
-            gt = gt_flow_from_ulp_offsets(data["gt_flow"][off[j] : off[j + 1]], static_flow_of(pc1, data["T"][j]))
+            sf = static_flow(pc1, data["T"][j], as_float32=True)
+            gt = gt_flow_from_ulp_offsets(data["gt_flow"][off[j] : off[j + 1]], sf)
             if not np.isfinite(gt).all():
                 problems.append(f"pair {j}: gt_flow not finite")
     if int(a["num_pairs"]) != P:
