@@ -11,7 +11,8 @@ import pytest
 
 from evaluation.readers import REGISTRY, FlowNet3DOptions, HPLFlowNetOptions, load_split
 from pipeline.axes import FORMAT_AXES, HPLFLOWNET, LIDAR
-from pipeline.synth.sceneflow_export import MAX_Z, ScanGT, write_pair
+from pipeline.filters import FAR_LIMIT_M
+from pipeline.synth.sceneflow_export import ScanGT, write_pair
 
 WRITTEN = ("flownet3d", "hplflownet")  # the layouts of the synthetic world's sceneflow/ folder
 
@@ -61,8 +62,8 @@ def test_flownet3d_round_trip(written) -> None:
     root, t0, t1 = written
     s = load_split(root / "flownet3d")[0]
     assert s.name == "000007"
-    keep1 = ~t0.ground & (t0.points[:, 2] < MAX_Z)  # the writer's own filters: ground removed, z < 35 m
-    keep2 = ~t1.ground & (t1.points[:, 2] < MAX_Z)
+    keep1 = ~t0.ground & (t0.points[:, 2] < FAR_LIMIT_M)  # the writer's own filters: ground removed, z < 35 m
+    keep2 = ~t1.ground & (t1.points[:, 2] < FAR_LIMIT_M)
     assert 0 < keep1.sum() < len(keep1)
     np.testing.assert_allclose(s.pc1, t0.points[keep1], atol=1e-5)
     np.testing.assert_allclose(s.flow, t0.flow[keep1], atol=1e-6)

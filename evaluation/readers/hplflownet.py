@@ -27,6 +27,7 @@ from evaluation.readers.arrays import LABELS, Spec, check_labels, check_mask, ch
 from evaluation.readers.base import Entry, SceneFlowFormat
 from evaluation.sample import SceneFlowSample
 from pipeline.axes import FORMAT_AXES
+from pipeline.filters import FAR_LIMIT_M
 
 NAME = "hplflownet"
 _AXES = FORMAT_AXES[NAME]
@@ -48,7 +49,7 @@ class HPLFlowNetOptions:
     remove_ground: bool = True
     ground_height: float = 1.4
     ground_rule: Literal["both", "either"] = "both"
-    max_depth: float | None = 35.0
+    max_depth: float | None = FAR_LIMIT_M
 
     def __post_init__(self) -> None:
         if self.ground_rule not in ("both", "either"):

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.axes import FORMAT_AXES
+from pipeline.filters import FAR_LIMIT_M
 from pipeline.synth.writer import frame_name, save_npy, save_npz
 
-MAX_Z = 35.0
 CLASS_CODES = {"background": 0, "car": 1}
 FOREGROUND_CATEGORIES = {"parked_car": CLASS_CODES["car"], "moving_car": CLASS_CODES["car"]}
 
@@ -54,8 +54,8 @@ class ScanGT:
 def write_pair(root: Path, index: int, scan_t: ScanGT, scan_t1: ScanGT) -> tuple[int, int]:
     """Write pair ``index`` (t → t+1) in both layouts; return (FlowNet3D N1, HPLFlowNet N)."""
     name = frame_name(index)
-    keep1 = ~scan_t.ground & (scan_t.points[:, 2] < MAX_Z)
-    keep2 = ~scan_t1.ground & (scan_t1.points[:, 2] < MAX_Z)
+    keep1 = ~scan_t.ground & (scan_t.points[:, 2] < FAR_LIMIT_M)
+    keep2 = ~scan_t1.ground & (scan_t1.points[:, 2] < FAR_LIMIT_M)
     labels = {k: getattr(scan_t, k).astype(np.int32) for k in ("classes", "instance") if getattr(scan_t, k) is not None}
     fn3d = FORMAT_AXES["flownet3d"]
     save_npz(
@@ -107,4 +107,4 @@ instance = index of the world object the point lies on (-1: none).
 
 def write_readme(root: Path, seq: str, pairs: int) -> None:
     root.mkdir(parents=True, exist_ok=True)
-    (root / "README.txt").write_text(README.format(seq=seq, pairs=pairs, max_z=MAX_Z), encoding="utf-8")
+    (root / "README.txt").write_text(README.format(seq=seq, pairs=pairs, max_z=FAR_LIMIT_M), encoding="utf-8")
