@@ -2,7 +2,7 @@
 
 Core modules: :mod:`evaluation.sample` (the test sample), :mod:`evaluation.readers` (FlowNet3D /
 HPLFlowNet / OpenSceneFlow test sets, one module per format behind one registry,
-:func:`~evaluation.readers.load_split`; their axis conventions are :mod:`pipeline.axes`),
+:func:`~evaluation.readers.load_split`; their axis conventions are :mod:`core.axes`),
 :mod:`evaluation.metrics` (EPE3D, Acc3DS/R, Outliers3D, three-way and dynamic normalised EPE, distance
 bands), :mod:`evaluation.protocols` (which points are scored) and
 :mod:`evaluation.scenes` (HPLFlowNet's mapping, --scenes, the trained-on guard),

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 from training.model.halflownet_config import level_points_for  # noqa: F401  (re-exported for the tests and tools)
 from training.model.registry import DEFAULT_NET, config_class
 
@@ -210,7 +210,7 @@ def run_ablations(args: argparse.Namespace | AblationConfig) -> int:
     cfg = args.validate() if isinstance(args, AblationConfig) else config_from_args(args)
     out = Path(cfg.out)
     if not Path(cfg.world).is_dir():
-        from pipeline.errors import InputError
+        from core.errors import InputError
 
         raise InputError(cfg.world, "no such dataset folder (--world)")
     split_path = cfg.split or str(Path(cfg.world) / "sceneflow" / "flownet3d")

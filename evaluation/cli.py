@@ -24,7 +24,7 @@ from pathlib import Path
 
 from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
 from evaluation.readers.flags import add_reader_flags, open_split
-from pipeline.errors import ConfigError, run_cli
+from core.errors import ConfigError, run_cli
 
 
 def _csv(text: str) -> list[str]:
@@ -84,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     from evaluation.ablations import add_arguments
 
     add_arguments(a)
-    from pipeline.options import add_underscore_aliases
+    from core.options import add_underscore_aliases
 
     return add_underscore_aliases(p)
 

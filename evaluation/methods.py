@@ -20,7 +20,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 
 class FlowMethod(Protocol):
@@ -53,7 +53,7 @@ class StaticPoseMethod:
 
     def __call__(self, pc1, pc2, color1=None, color2=None, pose: np.ndarray | None = None) -> np.ndarray:
         from evaluation.baselines.base import as_cloud
-        from pipeline.geometry import static_flow
+        from core.geometry import static_flow
 
         if pose is None:
             raise ConfigError("the 'static' baseline needs a split with poses (T_1→2 per scene); this one has none")

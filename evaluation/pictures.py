@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 
 INSTALL_HINT = "pip install matplotlib (in a monoflow checkout: pip install -e '.[plots]')"
 
@@ -90,7 +90,7 @@ def pair_picture(path: str | Path, pair: Any, image: np.ndarray, K: np.ndarray, 
     static_flow, T, rgb1 (see :class:`evaluation.predict.run.PairOutput`); ``image``: frame t (any size, RGB
     uint8; resized to the working size of K's pixels)."""
     Figure, Canvas = require_matplotlib()
-    from pipeline.geometry import se3_inverse
+    from core.geometry import se3_inverse
     from pipeline.sources import resize_image
 
     uv1 = np.asarray(pair.uv1)

@@ -9,7 +9,7 @@
   true (green) flow's x–z components on a subsample of the scored points.
 
 Needs matplotlib, the optional extra ``plots`` (``pip install monoflow[plots]``); without it
-:func:`write_plots` raises :class:`~pipeline.errors.ConfigError` saying so. Uses the Agg canvas directly,
+:func:`write_plots` raises :class:`~core.errors.ConfigError` saying so. Uses the Agg canvas directly,
 so no display and no global pyplot state are involved.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 
 from evaluation.pictures import INSTALL_HINT  # one install hint for every picture
 from evaluation.predictions import ScenePrediction
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 
 def _matplotlib():

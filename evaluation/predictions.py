@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from evaluation.metrics import aggregate, scene_metrics
-from pipeline.errors import InputError
+from core.errors import InputError
 
 FORMAT_NAME = "monoflow-predictions"
 FORMAT_VERSION = 1

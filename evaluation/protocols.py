@@ -42,7 +42,7 @@ from evaluation.methods import FlowMethod
 from evaluation.metrics import SUBSETS, aggregate, mean_over_runs, scene_metrics
 from evaluation.predictions import ScenePrediction
 from evaluation.sample import SceneFlowSample
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 
 PROTOCOLS = ("released", "fps", "hplflownet", "flownet3d", "full")
 ALIASES = {"paper": "fps"}  # monoflow's earlier name of the fps protocol

@@ -42,7 +42,7 @@ def provenance() -> dict[str, Any]:
     """Package versions, git revision and command line, saved with every report (docs/design.md §1)."""
     import sys
 
-    from pipeline.runinfo import git_revision, package_versions
+    from core.runinfo import git_revision, package_versions
 
     return {"versions": package_versions(), "git": git_revision(describe=True), "argv": sys.argv}
 

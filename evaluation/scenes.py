@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 
 KITTI_O_SCENES = 150
 KITTI_T_SCENES = 50

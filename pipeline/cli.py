@@ -17,13 +17,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pipeline.errors import run_cli
+from core.errors import run_cli
 
 COMMANDS = ("run", "merge", "verify")
 
 
 def _run_parser() -> argparse.ArgumentParser:
-    from pipeline.options import add_dataclass_args
+    from core.options import add_dataclass_args
     from pipeline.preprocess import PreprocessConfig
 
     p = argparse.ArgumentParser(
@@ -54,7 +54,7 @@ def _top_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(argv: list[str]) -> int:
-    from pipeline.options import build_config
+    from core.options import build_config
     from pipeline.preprocess import PreprocessConfig, run_preprocess
 
     args = _run_parser().parse_args(argv)

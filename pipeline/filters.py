@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 
 #: The order in which :mod:`pipeline.pairs` applies the filters (and names them in its stats).

@@ -6,7 +6,7 @@ out. The filters run in :data:`pipeline.filters.FILTER_NAMES` order; the count o
 each one is recorded in the pair's stats (``pc1_<name>`` for frame t, ``pc2_<name>`` for frame t+1,
 ``valid`` = pixels with depth; ``pc1_gt`` = frame-t points left that have ground truth, when the source
 has it). Static flow is not stored: the reader derives it from the kept points and ``T``
-(:func:`pipeline.geometry.static_flow`).
+(:func:`core.geometry.static_flow`).
 
 Depth maps handed in must already be scaled and on the cache's grid
 (:func:`pipeline.cache.points.canonical_depth`).
@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.cache.points import points_from_depth
 from pipeline.cache.records import PairRecord
 from pipeline.filters import FilterConfig, far_keep, ground_keep, lidar_keep, occlusion_keep
-from pipeline.geometry import se3_inverse
+from core.geometry import se3_inverse
 from pipeline.sources import GroundTruthFlow
 
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.errors import ConfigError, MonoflowError
-from pipeline.geometry import backproject, pixel_grid
+from core.errors import ConfigError, MonoflowError
+from core.geometry import backproject, pixel_grid
 
 SCALE_MODES = ("none", "fixed", "lidar", "camera-height")
 SCALE_FALLBACKS = ("carry", "abort")

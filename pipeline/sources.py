@@ -10,7 +10,7 @@ Depth sources (each returns metric-or-net-scale depth at the working size, (N, H
 
 Pose sources (``T_{t→t+1}``, (N, 4, 4)): ``net`` (PoseResNet) or ``gt`` (the dataset's poses file).
 
-Working size: images are resized to (W, H) and K is scaled with :func:`pipeline.geometry.scale_intrinsics`.
+Working size: images are resized to (W, H) and K is scaled with :func:`core.geometry.scale_intrinsics`.
 File-based maps at the native size are resampled by nearest neighbour at native pixel
 ``(u / sx, v / sy)`` — the pixel that the scaled K puts under working pixel (u, v) — so depth values are
 never blended across object edges.
@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from pipeline.errors import ConfigError, InputError
-from pipeline.geometry import project, scale_intrinsics
+from core.errors import ConfigError, InputError
+from core.geometry import project, scale_intrinsics
 
 if TYPE_CHECKING:  # the KITTI readers import OpenCV: loaded when a source first reads a file
     from pipeline.kitti.odometry import OdometrySequence

@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
 
-    from pipeline.errors import run_cli
+    from core.errors import run_cli
 
     return run_cli(lambda _: _run(args), None)
 

@@ -16,7 +16,7 @@ import numpy as np
 from pipeline.cache.points import canonical_depth, points_from_depth
 from pipeline.cache.records import BlockRecord, FrameRecord, PairRecord
 from pipeline.filters import FilterConfig, far_keep, ground_keep
-from pipeline.geometry import se3_inverse, static_flow
+from core.geometry import se3_inverse, static_flow
 
 CAMERA_HEIGHT = 1.65
 SPEED = 1.0  # metres per frame along the road

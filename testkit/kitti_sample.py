@@ -15,7 +15,7 @@ import numpy as np
 
 from pipeline.cache.points import canonical_depth
 from pipeline.cache.records import BlockRecord, FrameRecord, PairRecord
-from pipeline.errors import InputError
+from core.errors import InputError
 from testkit.demo_scene import keep_mask
 
 KITTI_FX, KITTI_CX, KITTI_CY, KITTI_W, KITTI_H = 721.5377, 609.5593, 172.854, 1242, 375

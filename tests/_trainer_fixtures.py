@@ -74,7 +74,7 @@ def panels_block(sequence: str, block_index: int, seq_offset: float, pairs: int 
                  height: int = HEIGHT, width: int = WIDTH):
     """Block ``block_index`` of a panels sequence: pairs (t, t+1) for t = block_index·pairs … + pairs − 1."""
     from pipeline.cache import BlockRecord, FrameRecord, PairRecord, canonical_depth, points_from_depth
-    from pipeline.geometry import static_flow
+    from core.geometry import static_flow
 
     K = panels_intrinsics(height, width)
     ids = list(range(block_index * pairs, block_index * pairs + pairs + 1))

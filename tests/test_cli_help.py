@@ -69,7 +69,7 @@ def test_dashed_spellings_are_aliases():
 
 
 def test_one_flag_sets_the_point_count():
-    from pipeline.options import build_config
+    from core.options import build_config
     from training.cli import apply_n_points, build_parser
     from training.config import TrainConfig
 

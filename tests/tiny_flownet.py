@@ -1,5 +1,5 @@
 """A second flow net, as small as a net can be: the example that adding a net takes one module and one
-registry line (``register_flow_net("tiny", TinyFlowConfig, TinyFlowNet)``, see tests/test_flow_registry.py).
+registry line (``register_flow_net("tiny", TinyFlowConfig, TinyFlowNet)``, see tests/training/test_flow_registry.py).
 
 Flow of every frame-1 point = the offset between the two clouds' means plus a per-point MLP of the centred
 point and its features; the four output levels are nested first-N subsets of the input (the ``"random"``
@@ -15,7 +15,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 from training.model.contract import FlowOutput, Sampling
 
 

@@ -165,7 +165,7 @@ def format_rows(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pipeline.errors import run_cli
+    from core.errors import run_cli
 
     p = argparse.ArgumentParser(prog="python -m training.audit", description=__doc__.split("\n\n")[0])
     p.add_argument("--cache", required=True)

@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import run_cli
+from core.errors import run_cli
 
 
 def _describe(p: argparse.ArgumentParser) -> None:
@@ -37,7 +37,7 @@ def _new_parser() -> argparse.ArgumentParser:
 def model_name_in(argv: list[str] | None) -> str:
     """The net ``argv`` trains: ``--model_name``, else the ``--config`` file's ``model_name``, else the
     default (the ``--model.*`` flags are that net's)."""
-    from pipeline.options import load_toml
+    from core.options import load_toml
     from training.model.registry import DEFAULT_NET
 
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
@@ -53,7 +53,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser, with one flag per (nested) field of :class:`training.config.TrainConfig`, the ``--model.*``
     ones of the net ``argv`` names (:func:`model_name_in`). Imports no torch (the configs are torch-free),
     so ``--help`` is instant."""
-    from pipeline.options import add_dataclass_args
+    from core.options import add_dataclass_args
     from training.config import TrainConfig
 
     p = _new_parser()
@@ -70,7 +70,7 @@ def _main(argv: list[str] | None) -> int:
 
     args_in = sys.argv[1:] if argv is None else argv
     args = build_parser(args_in).parse_args(args_in)
-    from pipeline.options import build_config
+    from core.options import build_config
     from training.config import TrainConfig
     from training.trainer import Trainer
 
@@ -109,7 +109,7 @@ RUN_MARKERS = ("latest.pt", "train.csv", "train.jsonl", "best.pt")
 
 def check_run_dir(run_dir: str | Path, resume: bool, overwrite: bool, markers: tuple[str, ...] = RUN_MARKERS) -> None:
     """ConfigError when ``run_dir`` already holds a run and neither ``--resume`` nor ``--overwrite`` was given."""
-    from pipeline.errors import ConfigError
+    from core.errors import ConfigError
 
     run = Path(run_dir)
     found = [m for m in markers if (run / m).exists()]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 from training.choices import ALPHA_ORDERS, DEPTH_VARIANTS, AlphaOrder, DepthVariant, KnnBackend
 from training.model.contract import FlowNetConfig
 from training.model.halflownet_config import HALFlowConfig, level_points_for  # noqa: F401  (re-exported)

@@ -15,8 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline import geometry
-from pipeline.errors import ConfigError, InputError
+from core import geometry
+from core.errors import ConfigError, InputError
 from training.augment import augment_masks
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw

@@ -6,7 +6,7 @@ element keeps the whole cloud and its running minimum distances in registers and
 inside the kernel. Same rule as the loop: start at index 0, take the point farthest from those taken,
 ties to the lowest index, a taken point is never taken again. Distances are the same float32 sums, but the
 compiler may fuse multiply-adds, so a near-tie can resolve differently from the loop (the sample is then
-another valid farthest-point sample; ``tests/test_pointops.py`` checks the property on a GPU).
+another valid farthest-point sample; ``tests/training/test_pointops.py`` checks the property on a GPU).
 
 Available when ``triton`` imports and the tensor is on a CUDA device with at most :data:`MAX_POINTS` points.
 """

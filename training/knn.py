@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import InputError, MonoflowError
+from core.errors import InputError, MonoflowError
 from training.choices import BACKENDS, KnnBackend  # noqa: F401  (re-exported: the backend names)
 
 

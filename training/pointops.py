@@ -18,7 +18,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from training import fps_triton
 from training.knn import KnnBackend, knn
 

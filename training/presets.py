@@ -11,7 +11,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     """The demo's :class:`~training.config.TrainConfig`: a half-width net at 2048 points, batch 4, on
     geometry alone (the LiDAR-like test splits have no colours), with the rigid ego-motion head and the
     camera-to-LiDAR augmentations; ``overrides`` are dotted ``{"model.ego_head": False}`` pairs."""
-    from pipeline.options import config_from_dict
+    from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
 
     base: dict[str, Any] = {

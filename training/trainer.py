@@ -30,8 +30,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import ConfigError, InputError, TrainingDiverged
-from pipeline.options import flatten
+from core.errors import ConfigError, InputError, TrainingDiverged
+from core.options import flatten
 from training.config import TrainConfig
 from training.data import (
     EpochAware,

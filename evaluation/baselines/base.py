@@ -11,7 +11,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from pipeline.geometry import rotation_angle
+from core.geometry import rotation_angle
 
 
 @runtime_checkable
@@ -120,7 +120,7 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) 
 def transform_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(rotation error in degrees, translation error in metres) between two 4×4 transforms.
 
-    The rotation error is the angle of ``R_truth⁻¹ R_estimate`` (:func:`pipeline.geometry.rotation_angle`,
+    The rotation error is the angle of ``R_truth⁻¹ R_estimate`` (:func:`core.geometry.rotation_angle`,
     accurate to rounding at every angle).
     """
     delta = np.linalg.inv(np.asarray(truth, np.float64)) @ np.asarray(estimate, np.float64)

@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pipeline.errors import run_cli
+from core.errors import run_cli
 
 
 def build_parser() -> argparse.ArgumentParser:
     """One flag per (nested) field of :class:`evaluation.predict.config.PredictConfig`, help from the field docs."""
     from evaluation.predict.config import PredictConfig
-    from pipeline.options import add_dataclass_args
+    from core.options import add_dataclass_args
 
     p = argparse.ArgumentParser(prog="monoflow-predict", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -36,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _main(argv: list[str] | None) -> int:
     from evaluation.predict.config import PredictConfig
     from evaluation.predict.run import run_predict
-    from pipeline.options import build_config
+    from core.options import build_config
 
     args = build_parser().parse_args(argv)
     cfg = build_config(PredictConfig, args, args.config, base=PredictConfig())

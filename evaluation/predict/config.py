@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 from pipeline.filters import FilterConfig
 from pipeline.scale import ScaleConfig
 from pipeline.sources import DEPTH_SOURCES, POSE_SOURCES

@@ -3,7 +3,7 @@
 Per block of consecutive pairs, stage one's :class:`pipeline.preprocess.BlockProcessor` computes every
 frame's depth once, every pair's pose, the scale factor (carried over frames without a road plane) and
 the filtered pixels; the clouds are rebuilt with the cache's own functions (``points_from_depth``,
-``pipeline.geometry.static_flow``), so they equal what ``monoflow-preprocess`` would cache for the same options.
+``core.geometry.static_flow``), so they equal what ``monoflow-preprocess`` would cache for the same options.
 
 The flow net sees each pair exactly as ``monoflow-evaluate run --protocol full`` shows a scene: both
 clouds sampled to ``n_points`` by :func:`evaluation.protocols.prepare_scene` (seeded by ``sample_seed`` and
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from evaluation.predict.config import PredictConfig
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 
 FORMAT_NAME = "monoflow-predict"
 FORMAT_VERSION = 1
@@ -116,7 +116,7 @@ def preprocess_config(cfg: PredictConfig, root: Path, sequence: str, camera: str
 def pairs_of_block(block, sequence: str) -> list[PairOutput]:
     """The clouds of a stage-one :class:`BlockRecord`, rebuilt with the cache's functions (flow not yet set)."""
     from pipeline.cache.points import colours_at, pixel_uv, points_from_depth
-    from pipeline.geometry import static_flow
+    from core.geometry import static_flow
 
     frames = {f.frame_id: f for f in block.frames}
     out = []

@@ -8,10 +8,10 @@ detection, its options dataclass and its loader:
 * ``opensceneflow`` (:mod:`evaluation.readers.opensceneflow`) — OpenSceneFlow / DeFlow HDF5.
 
 The synthetic world writes its test split in the first two (:mod:`pipeline.synth.sceneflow_export`);
-each format's axes, and their conversion to the camera frame, are :data:`pipeline.axes.FORMAT_AXES`.
+each format's axes, and their conversion to the camera frame, are :data:`core.axes.FORMAT_AXES`.
 
 :func:`load_split` auto-detects the format, validates every entry up front (shapes, keys) and raises
-one :class:`~pipeline.errors.InputError` listing every malformed file; samples are then read lazily,
+one :class:`~core.errors.InputError` listing every malformed file; samples are then read lazily,
 sorted by name. ``monoflow-evaluate run`` takes each format's options as ``--<format>.<option>`` flags
 (:mod:`evaluation.readers.flags`).
 """

@@ -3,7 +3,7 @@
 A format module (``evaluation/readers/<name>.py``) defines its options dataclass, its validation and its
 loader and exposes them as one ``FORMAT = SceneFlowFormat(...)``; :mod:`evaluation.readers.registry`
 lists the records. Loaders return :class:`~evaluation.sample.SceneFlowSample` in camera axes (x right,
-y down, z forward, metres), converting from the format's axes in :data:`pipeline.axes.FORMAT_AXES`.
+y down, z forward, metres), converting from the format's axes in :data:`core.axes.FORMAT_AXES`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from evaluation.sample import SceneFlowSample
-from pipeline.axes import FORMAT_AXES, Axes
+from core.axes import FORMAT_AXES, Axes
 
 
 @dataclass(frozen=True)
@@ -59,5 +59,5 @@ class SceneFlowFormat:
 
     @property
     def axes(self) -> Axes:
-        """The axes this format's files store points and flow in (:data:`pipeline.axes.FORMAT_AXES`)."""
+        """The axes this format's files store points and flow in (:data:`core.axes.FORMAT_AXES`)."""
         return FORMAT_AXES[self.name]

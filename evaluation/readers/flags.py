@@ -12,8 +12,8 @@ from typing import Any
 
 from evaluation.readers.registry import FORMATS, REGISTRY, detect_format, get_format
 from evaluation.readers.split import SceneFlowSplit, load_split
-from pipeline.errors import ConfigError
-from pipeline.options import add_dataclass_args, config_from_dict
+from core.errors import ConfigError
+from core.options import add_dataclass_args, config_from_dict
 
 
 def add_reader_flags(parser: argparse.ArgumentParser) -> None:

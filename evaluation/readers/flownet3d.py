@@ -1,7 +1,7 @@
 """FlowNet3D's ``kitti_rm_ground`` (also the synthetic world's ``sceneflow/flownet3d``).
 
 One ``*.npz`` per scene with ``pos1`` (N, 3), ``pos2`` (M, 3), ``gt`` (N, 3) in LiDAR-like axes
-(:data:`pipeline.axes.LIDAR`: x forward, y left, z up; camera = ``(−y, −z, x)``). Optional arrays read
+(:data:`core.axes.LIDAR`: x forward, y left, z up; camera = ``(−y, −z, x)``). Optional arrays read
 when present: ``moving`` (N,) (our synthetic generator writes it), ``classes`` / ``instance`` (N,)
 integers (class 0 = background; our generator writes them), ``color1`` (N, 3) and ``color2`` (M, 3) in
 [0, 1]. ``pos2`` is the next scan, not ``pos1 + gt``. Optional depth limit (FLOT's protocol keeps camera
@@ -19,7 +19,7 @@ import numpy as np
 from evaluation.readers.arrays import LABELS, check_labels, check_mask, check_points, npz_headers, raise_problems
 from evaluation.readers.base import Entry, SceneFlowFormat
 from evaluation.sample import SceneFlowSample
-from pipeline.axes import FORMAT_AXES
+from core.axes import FORMAT_AXES
 
 NAME = "flownet3d"
 _AXES = FORMAT_AXES[NAME]

@@ -1,7 +1,7 @@
 """HPLFlowNet's ``KITTI_processed_occ_final`` (also the synthetic world's ``sceneflow/hplflownet``).
 
 One folder per scene with ``pc1.npy`` and ``pc2.npy`` (N, 3) of corresponding points in stored axes
-``(−x, −y, z)`` of the camera (:data:`pipeline.axes.HPLFLOWNET`); flow = ``pc2 − pc1``; optional
+``(−x, −y, z)`` of the camera (:data:`core.axes.HPLFLOWNET`); flow = ``pc2 − pc1``; optional
 ``moving.npy``, ``classes.npy``, ``instance.npy`` (N,). Filtering follows HPLFlowNet's own loader
 (``datasets/kitti.py`` + ``transforms.ProcessData.process_inference``), applied to the stored axes: ground
 is ``y_s < −1.4`` and a pair is dropped **only when both** its pc1 and pc2 points are ground
@@ -26,7 +26,7 @@ import numpy as np
 from evaluation.readers.arrays import LABELS, Spec, check_labels, check_mask, check_points, npy_header, raise_problems
 from evaluation.readers.base import Entry, SceneFlowFormat
 from evaluation.sample import SceneFlowSample
-from pipeline.axes import FORMAT_AXES
+from core.axes import FORMAT_AXES
 from pipeline.filters import FAR_LIMIT_M
 
 NAME = "hplflownet"

@@ -1,7 +1,7 @@
 """OpenSceneFlow / DeFlow preprocessed HDF5 (Argoverse 2, Waymo, ... in one layout).
 
 One ``<scene_id>.h5`` per scene, one group per timestamp (name = the integer timestamp) with ``lidar``
-(N, ≥3, sensor/ego frame, LiDAR axes :data:`pipeline.axes.LIDAR`), ``pose`` (4, 4) ego→world,
+(N, ≥3, sensor/ego frame, LiDAR axes :data:`core.axes.LIDAR`), ``pose`` (4, 4) ego→world,
 ``ground_mask`` (N,) and, on frames that have ground truth, ``flow`` (N, 3) (``lidar + flow`` is the point
 in the *next* frame's coordinates) and ``flow_is_valid`` (N,), optionally ``ego_motion`` (4, 4) =
 ``T_{t→t+1}``, ``flow_category_indices`` (N,) (passed through as ``classes``; 0 = background, as
@@ -21,7 +21,7 @@ import numpy as np
 
 from evaluation.readers.base import Entry, SceneFlowFormat
 from evaluation.sample import SceneFlowSample
-from pipeline.axes import FORMAT_AXES
+from core.axes import FORMAT_AXES
 
 NAME = "opensceneflow"
 _AXES = FORMAT_AXES[NAME]

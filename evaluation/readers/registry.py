@@ -12,7 +12,7 @@ from pathlib import Path
 
 from evaluation.readers import flownet3d, hplflownet, opensceneflow
 from evaluation.readers.base import SceneFlowFormat
-from pipeline.errors import InputError
+from core.errors import InputError
 
 _REGISTERED: tuple[SceneFlowFormat, ...] = (
     flownet3d.FORMAT,

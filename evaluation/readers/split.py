@@ -1,7 +1,7 @@
 """A scene-flow test split: every entry validated up front, each scene read lazily on access.
 
 :func:`load_split` detects or takes the format (:mod:`evaluation.readers.registry`), lets the format list
-and validate its entries, raises one :class:`~pipeline.errors.InputError` listing every malformed file,
+and validate its entries, raises one :class:`~core.errors.InputError` listing every malformed file,
 and returns a :class:`SceneFlowSplit` sorted by scene name.
 """
 
@@ -18,7 +18,7 @@ from typing import Any, overload
 from evaluation.readers.base import Entry
 from evaluation.readers.registry import REGISTRY, detect_format, get_format
 from evaluation.sample import SceneFlowSample
-from pipeline.errors import InputError
+from core.errors import InputError
 
 
 @dataclass

@@ -19,7 +19,7 @@ from pipeline.cache.points import (
     quantize_depth,
 )
 from pipeline.cache.records import BlockRecord
-from pipeline.geometry import static_flow as static_flow_from_pose
+from core.geometry import static_flow as static_flow_from_pose
 
 DEPTH_ENCODING = {"dtype": "uint16", "steps_per_metre": DEPTH_STEPS_PER_METRE, "invalid": 0}
 

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import InputError
+from core.errors import InputError
 
 CHUNK_FILES_ATTR = "chunk_files"
 ROOT_METADATA = "zarr.json"

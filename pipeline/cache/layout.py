@@ -8,7 +8,7 @@ A cache root is ``<out>/<dataset>/<config-hash>/`` (:func:`cache_root`) holding
   ``blocks/<sequence>/<block:05d>.tmp-<pid>-<host>/`` until it is complete and renamed into place.
 
 JSON is written canonically (sorted keys, fixed separators, no NaN/inf) and atomically (temp file +
-``os.replace``, :func:`pipeline.jsonio.write_json_atomic`), so a resumed run produces byte-identical files.
+``os.replace``, :func:`core.jsonio.write_json_atomic`), so a resumed run produces byte-identical files.
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 # re-exported for the cache modules: temp names, fsync, and the JSON writer, whose defaults (no NaN/inf,
 # indent 1) are the cache's canonical form
-from pipeline.jsonio import fsync_dir, host_name, tmp_suffix, write_json_atomic  # noqa: F401
-from pipeline.runinfo import git_revision
+from core.jsonio import fsync_dir, host_name, tmp_suffix, write_json_atomic  # noqa: F401
+from core.runinfo import git_revision
 
 SCHEMA_VERSION = 2  # 2: blocks list their chunk files and sizes (integrity.py)
 FORMAT_NAME = "monoflow-stage-one-cache"
@@ -80,7 +80,7 @@ def block_dir(root: Path, sequence: str, block_index: int) -> Path:
 
 
 def parse_tmp_name(name: str) -> tuple[str, int, str] | None:
-    """(stem, pid, host) of a temp name made with :func:`pipeline.jsonio.tmp_suffix`, or None for any other name."""
+    """(stem, pid, host) of a temp name made with :func:`core.jsonio.tmp_suffix`, or None for any other name."""
     m = _TMP_RE.match(name)
     return (m["stem"], int(m["pid"]), m["host"]) if m else None
 

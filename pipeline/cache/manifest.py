@@ -33,7 +33,7 @@ from pipeline.cache.layout import (
     write_json_atomic,
 )
 from pipeline.cache.integrity import CHUNK_FILES_ATTR, file_problems, read_block_attrs
-from pipeline.errors import InputError
+from core.errors import InputError
 
 ExpectedBlocks = Mapping[str, int] | Iterable[tuple[str, int]]
 

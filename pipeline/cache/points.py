@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import backproject
+from core.geometry import backproject
 
 DEPTH_STEPS_PER_METRE = 256
 """Stored depth unit: 1/256 m (KITTI's depth-png convention)."""

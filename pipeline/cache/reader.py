@@ -6,7 +6,7 @@ pixels in frames t and t+1 (ragged arrays + offsets). A sample is rebuilt here:
 
 * ``pc1 = points_from_depth(depth_t, idx1, K)``, ``rgb1`` = RGB at idx1, ``uv1`` = (u, v) of idx1;
   pc2 / rgb2 / uv2 likewise from frame t+1 and idx2 (:mod:`pipeline.cache.points`);
-* ``static_flow = pipeline.geometry.static_flow(pc1, T, as_float32=True)`` with the stored float64 ``T_{t→t+1}``;
+* ``static_flow = core.geometry.static_flow(pc1, T, as_float32=True)`` with the stored float64 ``T_{t→t+1}``;
 * ground-truth flow, when present, from its stored int32 ulp offsets relative to that static flow;
 
 exactly the calls stage one makes, so the clouds equal stage one's bit for bit. Only blocks listed in
@@ -28,8 +28,8 @@ from pipeline.cache.integrity import check_block_files, read_block_attrs
 from pipeline.cache.layout import FORMAT_NAME, MANIFEST_NAME, SCHEMA_VERSION
 from pipeline.cache.manifest import read_manifest
 from pipeline.cache.points import dequantize_depth, pixel_uv, points_at_pixels
-from pipeline.errors import InputError
-from pipeline.geometry import static_flow
+from core.errors import InputError
+from core.geometry import static_flow
 
 
 @dataclass

@@ -16,8 +16,8 @@ from pipeline.cache.encode import gt_flow_from_ulp_offsets
 from pipeline.cache.layout import MANIFEST_NAME, block_relpath
 from pipeline.cache.manifest import find_tmp, inspect_block, read_manifest, scan_blocks
 from pipeline.cache.points import dequantize_depth, points_from_depth
-from pipeline.errors import InputError
-from pipeline.geometry import static_flow
+from core.errors import InputError
+from core.geometry import static_flow
 
 
 @dataclass

@@ -29,7 +29,7 @@ from pipeline.cache.layout import (
 )
 from pipeline.cache.manifest import ExpectedBlocks, make_header, merge, read_header, remove_stale_tmp
 from pipeline.cache.records import BlockRecord
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 
 
 class CacheWriter:

@@ -1,7 +1,7 @@
 """Readers and writers of KITTI's file formats (calibrations, poses, times, Velodyne scans, 8-bit
 images, 16-bit depth/disparity/flow PNGs) and of the KITTI-odometry folder layout.
 
-Every reader raises :class:`pipeline.errors.InputError` naming the file on bad input.
+Every reader raises :class:`core.errors.InputError` naming the file on bad input.
 """
 
 from pipeline.kitti.calib import (

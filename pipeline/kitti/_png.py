@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.kitti._text import PathLike
 
 

@@ -1,6 +1,6 @@
 """Parsing of KITTI's whitespace-separated text files (calibrations, poses, times).
 
-Every problem raises :class:`~pipeline.errors.InputError` naming the file and, where it applies, the
+Every problem raises :class:`~core.errors.InputError` naming the file and, where it applies, the
 key or the 1-based line number.
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 
 PathLike = str | os.PathLike[str]
 

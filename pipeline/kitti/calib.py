@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import to_homogeneous_3x4
+from core.errors import InputError
+from core.geometry import to_homogeneous_3x4
 from pipeline.kitti._text import (
     PathLike,
     format_row,

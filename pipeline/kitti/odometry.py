@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import ConfigError, InputError
-from pipeline.geometry import camera_offset_from_projection, relative_pose, se3_inverse
+from core.errors import ConfigError, InputError
+from core.geometry import camera_offset_from_projection, relative_pose, se3_inverse
 from pipeline.kitti._text import PathLike
 from pipeline.kitti.calib import OdometryCalib, read_odometry_calib
 from pipeline.kitti.images import image_size, read_image

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.kitti._png import decode, encode
 from pipeline.kitti._text import PathLike
 

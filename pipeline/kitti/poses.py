@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import to_homogeneous_3x4
+from core.errors import InputError
+from core.geometry import to_homogeneous_3x4
 from pipeline.kitti._text import PathLike, format_row, parse_floats, read_text, write_text
 
 ORTHONORMAL_TOL = 1e-3  # KITTI writes 7 significant digits; a rotation off by more than this is not one

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.kitti._text import PathLike
 
 RECORD_BYTES = 16  # 4 × float32

@@ -3,7 +3,7 @@
 A checkpoint is ``{'epoch': int, 'state_dict': {...}}`` (the official ``dispnet_model_best.pth.tar`` and
 ``exp_pose_model_best.pth.tar``) or a bare state dict; a ``module.`` prefix (DataParallel/DDP) is stripped.
 Loading is strict: any missing or unexpected key or shape mismatch raises
-:class:`pipeline.errors.InputError` with one line naming the file and the first offending keys.
+:class:`core.errors.InputError` with one line naming the file and the first offending keys.
 Files are read with ``torch.load(weights_only=True)``: no code inside a checkpoint is ever run.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.nets.depth_net import DispResNet
 from pipeline.nets.pose_net import PoseResNet
 from pipeline.nets.resnet import RESNET_SPECS
@@ -28,7 +28,7 @@ _BOTTLENECK_KEY = re.compile(r"^encoder\.encoder\.layer\d\.\d+\.conv3\.weight$")
 
 def read_state_dict(path: str | os.PathLike[str]) -> dict[str, Tensor]:
     """The state dict stored in ``path`` (CPU tensors, ``module.`` prefixes stripped)."""
-    from pipeline.safeload import load_weights_only
+    from core.safeload import load_weights_only
 
     path = Path(path)
     if not path.is_file():

@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import ConfigError
-from pipeline.geometry import pose_vec_to_mat
+from core.errors import ConfigError
+from core.geometry import pose_vec_to_mat
 from pipeline.nets.depth_net import DispResNet, disp_to_depth
 from pipeline.nets.normalize import normalize_image
 from pipeline.nets.pose_net import PoseResNet

@@ -12,7 +12,7 @@ coordinates to camera-b coordinates, ``p_b = R p_a + t`` (docs/design.md §2's `
 Its camera-to-world pose accumulates as ``Pose_b = Pose_a · inv(T_{a→b})``.
 
 Output vector: ``[tx, ty, tz, rx, ry, rz]`` — translation in the depth net's (unknown) scale, Euler angles
-in radians with ``R = Rx·Ry·Rz`` (see :func:`pipeline.geometry.pose_vec_to_mat`).
+in radians with ``R = Rx·Ry·Rz`` (see :func:`core.geometry.pose_vec_to_mat`).
 """
 
 from __future__ import annotations

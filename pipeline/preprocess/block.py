@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import MonoflowError
+from core.errors import MonoflowError
 from pipeline.preprocess.config import PreprocessConfig
 from pipeline.preprocess.planning import BlockPlan
 from pipeline.preprocess.sequences import open_sequences

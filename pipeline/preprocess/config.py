@@ -1,7 +1,7 @@
 """Stage one's options (:class:`PreprocessConfig`) and their validation.
 
 The field docs are the ``monoflow-preprocess`` help; :meth:`PreprocessConfig.validate` turns options that make
-no sense into one :class:`~pipeline.errors.ConfigError` / :class:`~pipeline.errors.InputError` line before
+no sense into one :class:`~core.errors.ConfigError` / :class:`~core.errors.InputError` line before
 anything is read or written.
 """
 
@@ -11,7 +11,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 from pipeline.filters import FilterConfig
 from pipeline.scale import ScaleConfig
 from pipeline.sources import DEPTH_SOURCES, POSE_SOURCES

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError, InputError, MonoflowError
+from core.errors import ConfigError, InputError, MonoflowError
 from pipeline.preprocess.block import BlockProcessor, BlockResult, DeferBlock
 from pipeline.preprocess.config import PreprocessConfig
 from pipeline.preprocess.planning import BlockPlan
@@ -30,7 +30,7 @@ def _worker_init(config_dict: dict[str, Any], root: str, cache_cfg: dict, source
     """Process-pool initializer: build this worker's nets and writer once (a setup error is kept for later)."""
     from pipeline.cache.writer import CacheWriter
     from pipeline.lifeline import die_with_parent
-    from pipeline.options import config_from_dict
+    from core.options import config_from_dict
 
     die_with_parent(parent_pid)  # a killed stage one leaves no worker behind
     try:

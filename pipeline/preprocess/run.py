@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.preprocess.block import BlockProcessor, BlockResult
 from pipeline.preprocess.config import PreprocessConfig
 from pipeline.preprocess.identity import cache_config, cache_source

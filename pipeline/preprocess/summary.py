@@ -80,7 +80,7 @@ class PreprocessSummary:
 def write_run_info(root: Path, config: PreprocessConfig) -> Path:
     """``preprocess_run.json`` beside the manifest: resolved config, package versions, git revision."""
     from pipeline.cache.layout import code_version, write_json_atomic
-    from pipeline.runinfo import package_versions
+    from core.runinfo import package_versions
 
     path = Path(root) / RUN_INFO_NAME
     write_json_atomic(path, {"config": dataclasses.asdict(config), "versions": package_versions(),

@@ -6,7 +6,7 @@ import argparse
 import os
 from dataclasses import replace
 
-from pipeline.errors import run_cli
+from core.errors import run_cli
 from pipeline.synth.config import SynthConfig
 
 
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes rendering frames; the output does not depend on it (default %(default)s)")
     p.add_argument("--force", action="store_true", help="replace an existing different world at --out")
-    from pipeline.options import add_underscore_aliases
+    from core.options import add_underscore_aliases
 
     return add_underscore_aliases(p)
 

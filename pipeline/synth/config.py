@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 #: Bumped whenever a change to the generator changes its output for the same config.
 SYNTH_VERSION = "2"  # 2: mottled asphalt (textures.ground)

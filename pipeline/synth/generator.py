@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from pipeline.synth.config import SYNTH_VERSION, SynthConfig
 from pipeline.synth.rig import make_rig
 from pipeline.synth.sceneflow_export import write_pair, write_readme

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import in_image, project, se3_inverse
+from core.geometry import in_image, project, se3_inverse
 from pipeline.synth.raycast import CameraRays, cast
 from pipeline.synth.world import World
 

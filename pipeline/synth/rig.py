@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.axes import LIDAR
+from core.axes import LIDAR
 from pipeline.synth.config import KITTI_CX, KITTI_CY, KITTI_FX, KITTI_FY, KITTI_SIZE, SynthConfig
 
 #: x offsets t_i (metres) in ``P_i = K [I | (t_i, 0, 0)]`` for cameras 0..3 (KITTI-like baselines).

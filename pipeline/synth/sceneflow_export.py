@@ -1,17 +1,17 @@
 """The scene-flow test split, in the two layouts the community's KITTI test sets use.
 
 * FlowNet3D ``kitti_rm_ground``: ``flownet3d/XXXXXX.npz`` with ``pos1``, ``pos2``, ``gt`` (N, 3) in
-  LiDAR-like axes (:data:`pipeline.axes.LIDAR`: stored (x, y, z) = (cam_z, −cam_x, −cam_y)), ground
+  LiDAR-like axes (:data:`core.axes.LIDAR`: stored (x, y, z) = (cam_z, −cam_x, −cam_y)), ground
   removed, camera z < 35 m; ``pos2`` is the next scan (camera-(t+1) frame), not pos1 moved.
 * HPLFlowNet ``KITTI_processed_occ_final``: ``hplflownet/XXXXXX/pc1.npy``, ``pc2.npy`` in axes
-  (−cam_x, −cam_y, cam_z) (:data:`pipeline.axes.HPLFLOWNET`), ``pc2 = pc1 + flow`` point to point;
+  (−cam_x, −cam_y, cam_z) (:data:`core.axes.HPLFLOWNET`), ``pc2 = pc1 + flow`` point to point;
   ground kept (its reader drops stored y < −1.4 and keeps z < 35).
 
 Both come from the LiDAR scan at t, restricted to points that project into image_2 at t; the flow is
 the generator's ground truth (camera-(t+1) position minus camera-t position, metres). Each pc1 point
 also carries ``moving`` (bool), ``classes`` (int32: 0 background, 1 car — parked or moving, the
 three-way EPE's foreground) and ``instance`` (int32: the world object's index, −1 for none).
-Each layout's axes are :data:`pipeline.axes.FORMAT_AXES`, the table the evaluation readers use too.
+Each layout's axes are :data:`core.axes.FORMAT_AXES`, the table the evaluation readers use too.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.axes import FORMAT_AXES
+from core.axes import FORMAT_AXES
 from pipeline.filters import FAR_LIMIT_M
 from pipeline.synth.writer import frame_name, save_npy, save_npz
 

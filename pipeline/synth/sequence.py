@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.geometry import in_image, project, se3_inverse
+from core.geometry import in_image, project, se3_inverse
 from pipeline.kitti import write_depth_png, write_image, write_odometry_calib, write_poses, write_times, write_velodyne_bin
 from pipeline.synth import lidar
 from pipeline.synth.config import SynthConfig

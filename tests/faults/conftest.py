@@ -1,5 +1,6 @@
 """Fault-injection tests (``pytest -m faults``): every test here is marked ``faults``; the shared helpers of
-``tests/`` are importable from this folder too."""
+``tests/`` and the helpers of the stage folders' tests (``test_preprocess.tree_bytes``,
+``test_eval_cli.save_tiny_checkpoint``) are importable from this folder too."""
 
 from __future__ import annotations
 
@@ -9,8 +10,9 @@ from pathlib import Path
 import pytest
 
 TESTS = Path(__file__).resolve().parents[1]
-if str(TESTS) not in sys.path:
-    sys.path.insert(0, str(TESTS))
+for folder in (TESTS, TESTS / "pipeline", TESTS / "evaluation"):
+    if str(folder) not in sys.path:
+        sys.path.insert(0, str(folder))
 
 
 def pytest_collection_modifyitems(config, items) -> None:

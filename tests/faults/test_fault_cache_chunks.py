@@ -13,7 +13,7 @@ from _faults import assert_one_error_line, run_cli
 from _trainer_fixtures import config_flags, tiny_cache, tiny_config  # noqa: F401
 
 from pipeline.cache import CacheReader, merge, verify
-from pipeline.errors import InputError
+from core.errors import InputError
 
 BLOCK = "blocks/00/00001"
 

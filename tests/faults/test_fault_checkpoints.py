@@ -14,7 +14,7 @@ from training.runtime.checkpoints import load_checkpoint
 
 
 def test_loader_refuses_and_runs_nothing(tmp_path: Path) -> None:
-    from pipeline.errors import InputError
+    from core.errors import InputError
 
     marker = tmp_path / "pwned"
     evil = write_malicious_checkpoint(tmp_path / "latest.pt", marker)

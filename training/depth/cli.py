@@ -19,13 +19,13 @@ import argparse
 import json
 import sys
 
-from pipeline.errors import run_cli
+from core.errors import run_cli
 
 PRESETS = ("demo", "tiny")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from pipeline.options import add_dataclass_args
+    from core.options import add_dataclass_args
     from training.depth.config import DepthTrainConfig
 
     p = argparse.ArgumentParser(prog="monoflow-train-depth", allow_abbrev=False, description=__doc__.split("\n\n")[0],
@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def resolve_config(args: argparse.Namespace):
     """The run's :class:`DepthTrainConfig`: preset (or defaults) < TOML < flags."""
-    from pipeline.options import build_config
+    from core.options import build_config
     from training.depth.config import DepthTrainConfig, demo_config, tiny_config
 
     preset = None

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.errors import ConfigError, InputError
-from pipeline.geometry import crop_intrinsics, scale_intrinsics
+from core.errors import ConfigError, InputError
+from core.geometry import crop_intrinsics, scale_intrinsics
 from pipeline.kitti.odometry import OdometrySequence, find_sequences
 from pipeline.sources import read_frames, working_K
 from training.depth.config import DepthDataConfig

@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.geometry import relative_pose, rotation_angle, se3_inverse
+from core.geometry import relative_pose, rotation_angle, se3_inverse
 from pipeline.kitti.odometry import OdometrySequence
 from pipeline.kitti.png16 import read_depth_png
 from pipeline.sources import GT_DEPTH_DIR, project_lidar, read_frames, velo_to_cam

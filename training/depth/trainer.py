@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.errors import ConfigError, InputError, TrainingDiverged
-from pipeline.geometry import pose_vec_to_mat
+from core.errors import ConfigError, InputError, TrainingDiverged
+from core.geometry import pose_vec_to_mat
 from pipeline.nets import DispResNet, PoseResNet, load_imagenet_encoder, normalize_image, save_checkpoint
 from training.data import EpochAware, StepBatches
 from training.depth.config import DepthTrainConfig

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch.nn.functional as F
 from torch import Tensor
 
-from pipeline.geometry import backproject, project, transform_points
+from core.geometry import backproject, project, transform_points
 
 MIN_DEPTH = 1e-3
 """z below this (behind or at the reference camera) is invalid; computed depths are clamped to it."""

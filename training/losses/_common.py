@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from pipeline.errors import InputError
+from core.errors import InputError
 
 
 def check_points(where: str, name: str, t: object, batch: int | None = None, n: int | None = None) -> Tensor:

@@ -24,8 +24,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from pipeline.errors import InputError
-from pipeline.geometry import backproject, project
+from core.errors import InputError
+from core.geometry import backproject, project
 from training.losses._common import check_points, masked_mean
 from training.choices import DEPTH_VARIANTS, DepthVariant  # noqa: F401  (re-exported)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 from training.losses._common import check_points
 from training.losses.chamfer import chamfer
 from training.losses.depth_consistency import depth_consistency

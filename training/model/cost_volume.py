@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from pipeline.errors import InputError
+from core.errors import InputError
 from training.knn import KnnBackend, knn
 from training.model.layers import SharedMLP
 from training.pointops import group

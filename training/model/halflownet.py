@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
 from training.model.ego_motion import rigid_plus_residual

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 from training.choices import BACKENDS
 
 N_LEVELS = 5  # L0..L4; flows come out at L0..L3

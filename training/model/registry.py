@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pipeline.errors import ConfigError, InputError
+from core.errors import ConfigError, InputError
 from training.model.contract import FlowNet, FlowNetConfig
 from training.model.halflownet_config import HALFlowConfig
 

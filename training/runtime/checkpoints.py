@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import InputError
+from core.errors import InputError
 
 CHECKPOINT_VERSION = 1
 
@@ -124,7 +124,7 @@ def load_checkpoint(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
     ``kind`` is the trainer that wrote it (``"flow"`` or ``"depth"``). Any problem is one
     :class:`InputError` naming the file.
     """
-    from pipeline.safeload import load_weights_only
+    from core.safeload import load_weights_only
 
     ckpt = load_weights_only(path, _numpy_globals())
     if not isinstance(ckpt, dict) or "checkpoint_version" not in ckpt:

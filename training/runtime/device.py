@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from pipeline.errors import ConfigError
+from core.errors import ConfigError
 
 
 def resolve_device(name: str = "auto", local_rank: int | None = None):

@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipeline import jsonio
-from pipeline.runinfo import git_revision, package_versions
+from core import jsonio
+from core.runinfo import git_revision, package_versions
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
