@@ -96,7 +96,7 @@ def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], i
                  idx2: list[Tensor], weights: LossWeights) -> list[dict[str, float]]:
     """Per level (finest first): every enabled unweighted term and ``weighted`` (α_k Σ β L), floats, as
     :func:`training.losses.total.multi_level_loss` computes and logs them."""
-    from training.trainer import gather
+    from training.two_pass import gather
 
     levels = [LevelInputs(pc1=gather(batch.pc1, i1), pc2=gather(batch.pc2, i2), flow_o=fo, flow_d=fd,
                           static_flow=gather(batch.static_flow, i1), K=batch.K, depth2=batch.depth2)
@@ -110,7 +110,7 @@ def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], i
 def audit(cfg: AuditConfig) -> list[dict]:
     """Rows ``{candidate, level, weighted, <terms>}``, each the mean over the audited pairs."""
     from pipeline.cache import CacheReader
-    from training.trainer import gather
+    from training.two_pass import gather
 
     reader = CacheReader(cfg.cache)
     with_gt = pairs_with_gt_flow(reader)
@@ -133,7 +133,7 @@ def audit(cfg: AuditConfig) -> list[dict]:
     for j in range(len(pairs)):
         batch = collate([data[j]])
         if net is not None:
-            from training.trainer import forward_two_passes
+            from training.two_pass import forward_two_passes
 
             out_o, out_d = forward_two_passes(net, batch)
             idx1, idx2 = out_o.indices, out_o.indices2

@@ -45,7 +45,7 @@ def validation_sums(model, batches, loss_weights, device) -> "np.ndarray":
 
     from training.data import collate
     from training.losses.total import multi_level_loss
-    from training.trainer import epe3d, forward_two_passes, level_inputs
+    from training.two_pass import epe3d, forward_two_passes, level_inputs
 
     sums = np.zeros(6)
     for samples in batches:

@@ -42,13 +42,14 @@ from training.data import (
     collate,
     train_val_split,
 )
-from training.losses.total import LevelInputs, multi_level_loss
-from training.model.contract import FlowNet, FlowOutput
+from training.losses.total import multi_level_loss
+from training.model.contract import FlowNet
 from training.model.registry import config_class, construct_model
 from training.runtime import checkpoints, distributed
 from training.runtime.device import resolve_device
 from training.runtime.logs import MetricLogger
 from training.runtime.rundir import save_run_info
+from training.two_pass import forward_two_passes, level_inputs
 
 # Options a resumed run may change without changing the trajectory of the weights.
 RESUMABLE_CHANGES = frozenset({
@@ -67,39 +68,6 @@ def lr_factor(step: int, cfg: TrainConfig) -> float:
     o = cfg.optim
     samples = step * o.batch_size
     return max(o.decay ** (samples // o.decay_every_samples), min(1.0, o.lr_min / o.lr))
-
-
-def gather(x: Tensor, idx: Tensor) -> Tensor:
-    """``x`` (B, N, C) or (B, N) at ``idx`` (B, n)."""
-    if x.dim() == 2:
-        return x.gather(1, idx)
-    return x.gather(1, idx[..., None].expand(-1, -1, x.shape[-1]))
-
-
-def forward_two_passes(net: FlowNet, batch: FlowBatch) -> tuple[FlowOutput, FlowOutput]:
-    """The overall pass on (pc1, pc2) and the dynamic pass on (pc1 + sf_s, pc2) at the same points (the
-    second pass reuses the first's ``sampling``; :mod:`training.model.contract`)."""
-    out_o = net(batch.pc1, batch.pc2, batch.feat1, batch.feat2)
-    out_d = net(batch.pc1 + batch.static_flow, batch.pc2, batch.feat1, batch.feat2, sampling=out_o.sampling)
-    return out_o, out_d
-
-
-def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput) -> list[LevelInputs]:
-    """Per pyramid level (finest first): the level's points and flows the losses need."""
-    levels = []
-    for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
-        idx1, idx2 = out_o.indices[l], out_o.indices2[l]
-        levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=gather(batch.pc2, idx2), flow_o=f_o.float(),
-                                  flow_d=f_d.float(), static_flow=gather(batch.static_flow, idx1), K=batch.K,
-                                  depth2=batch.depth2))
-    return levels
-
-
-def epe3d(out: FlowOutput, batch: FlowBatch) -> tuple[float, int]:
-    """Sum of per-point EPE3D (metres) at the finest level and the number of points (for a mean)."""
-    gt = gather(batch.gt_flow, out.indices[0])
-    err = torch.linalg.norm(out.flows[0].float() - gt, dim=-1)
-    return float(err.sum()), int(err.numel())
 
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:

@@ -1,0 +1,50 @@
+"""The paper's two passes of the net over a batch and what the losses read from them (eqs. 11–17).
+
+The overall pass ``net(pc1, pc2)`` gives the flow ``sf_o``; the dynamic pass ``net(pc1 + sf_s, pc2)`` at the
+same sampled points (``sampling=``, :mod:`training.model.contract`) gives ``sf_d``, the flow left once the
+camera's static flow ``sf_s`` (eq. 11) is applied. Every pyramid level then hands the losses its points
+and both flows (:class:`training.losses.total.LevelInputs`). Camera frames, metres. Used by the trainer,
+the label-free validation scores (:mod:`training.selection`) and the objective audit (:mod:`training.audit`).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from training.data import FlowBatch
+from training.losses.total import LevelInputs
+from training.model.contract import FlowNet, FlowOutput
+
+
+def gather(x: Tensor, idx: Tensor) -> Tensor:
+    """``x`` (B, N, C) or (B, N) at ``idx`` (B, n)."""
+    if x.dim() == 2:
+        return x.gather(1, idx)
+    return x.gather(1, idx[..., None].expand(-1, -1, x.shape[-1]))
+
+
+def forward_two_passes(net: FlowNet, batch: FlowBatch) -> tuple[FlowOutput, FlowOutput]:
+    """The overall pass on (pc1, pc2) and the dynamic pass on (pc1 + sf_s, pc2) at the same points (the
+    second pass reuses the first's ``sampling``; :mod:`training.model.contract`)."""
+    out_o = net(batch.pc1, batch.pc2, batch.feat1, batch.feat2)
+    out_d = net(batch.pc1 + batch.static_flow, batch.pc2, batch.feat1, batch.feat2, sampling=out_o.sampling)
+    return out_o, out_d
+
+
+def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput) -> list[LevelInputs]:
+    """Per pyramid level (finest first): the level's points and flows the losses need."""
+    levels = []
+    for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
+        idx1, idx2 = out_o.indices[l], out_o.indices2[l]
+        levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=gather(batch.pc2, idx2), flow_o=f_o.float(),
+                                  flow_d=f_d.float(), static_flow=gather(batch.static_flow, idx1), K=batch.K,
+                                  depth2=batch.depth2))
+    return levels
+
+
+def epe3d(out: FlowOutput, batch: FlowBatch) -> tuple[float, int]:
+    """Sum of per-point EPE3D (metres) at the finest level and the number of points (for a mean)."""
+    gt = gather(batch.gt_flow, out.indices[0])
+    err = torch.linalg.norm(out.flows[0].float() - gt, dim=-1)
+    return float(err.sum()), int(err.numel())
