@@ -14,11 +14,16 @@ z forward, metres), seeded by the pair's draw, before the ``n_points`` are sampl
 * ``density_drop`` (fraction): frame t+1 loses a random share of up to this fraction of its points;
 * ``ground_jitter_m`` (metres): both frames lose the points lower than a cut drawn up to this far
   above the lowest remaining points (the 99th percentile of y in frame t).
+
+One augmentation changes the motion instead of the points kept: ``ego_speed_scale`` (:func:`speed_scaled_view`)
+makes a pair look as if the camera had moved a factor faster or slower between t and t+1, so that the
+net meets camera speeds beyond the few the training sequences drove at.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 RING_SPACING_DEG = (0.3, 0.5)
 
@@ -57,3 +62,28 @@ def augment_masks(rng: np.random.Generator, pc1: np.ndarray, pc2: np.ndarray, li
         cut = np.percentile(pc1[:, 1], 99.0) - rng.uniform(0.0, ground_jitter_m)
         apply(pc1[:, 1] <= cut, pc2[:, 1] <= cut)
     return keep1, keep2
+
+
+def speed_scaled_view(T: np.ndarray, scale: float) -> np.ndarray:
+    """The 4×4 rigid motion ``A`` that moves frame t's camera so that the pair's ego-motion becomes ``scale``
+    times ``T`` (``T_{t→t+1}``: camera-t coordinates to camera-(t+1), metres).
+
+    Scaling a motion: its rotation angle about the same axis and its translation are both multiplied by
+    ``scale`` (the same path curvature driven ``scale`` times as far), ``T' = (R^scale, scale · t)``. Frame
+    t+1 stays where it is, so its cloud, its depth map and every target in its frame are untouched; frame
+    t's points become ``A p`` with ``A = T'⁻¹ T`` (then ``T' A p = T p``: a static point lands where it did),
+    and a flow target ``f`` at ``p`` becomes ``p + f − A p``. Only the depth-consistency term's
+    back-projection at the source pixel sees the new camera-t position, as it would for a real camera there.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    Ts = np.eye(4)
+    Ts[:3, :3] = Rotation.from_rotvec(scale * Rotation.from_matrix(T[:3, :3]).as_rotvec()).as_matrix()
+    Ts[:3, 3] = scale * T[:3, 3]
+    return np.linalg.inv(Ts) @ T
+
+
+def draw_speed_scale(rng: np.random.Generator, low: float, high: float) -> float:
+    """A factor drawn log-uniformly in [low, high] (so ×2 and ×½ are equally likely); no draw when equal."""
+    if low == high:
+        return float(low)
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))

@@ -43,6 +43,10 @@ class DataConfig:
     density_drop: frame t+1 loses a random share of up to this fraction of its points; 0 = off.
     ground_jitter_m: metres; both frames lose points below a cut drawn up to this far above the lowest
         points, as a test split's height-threshold ground removal would; 0 = off.
+    ego_speed_scale: (low, high); each training pair's camera motion is rescaled by a factor drawn
+        log-uniformly in this range (rotation angle and translation alike; frame t's cloud is moved, frame
+        t+1 and its depth map stay, :func:`training.augment.speed_scaled_view`), so the net learns camera
+        speeds beyond the ones its sequences drove at (KITTI: 0–2.5 m per frame); (1, 1) = off.
     """
 
     n_points: int = 8192
@@ -57,6 +61,7 @@ class DataConfig:
     ring_band: float = 0.5
     density_drop: float = 0.0
     ground_jitter_m: float = 0.0
+    ego_speed_scale: tuple[float, float] = (1.0, 1.0)
 
     def augment(self) -> dict:
         """The keyword arguments of :func:`training.augment.augment_masks` for training pairs."""

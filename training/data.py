@@ -17,7 +17,7 @@ from torch import Tensor
 
 from core import geometry
 from core.errors import ConfigError, InputError
-from training.augment import augment_masks
+from training.augment import augment_masks, draw_speed_scale, speed_scaled_view
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -95,7 +95,8 @@ class PairDataset(torch.utils.data.Dataset):
 
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
-                 depth2_kept_only: bool = False, augment: dict | None = None) -> None:
+                 depth2_kept_only: bool = False, augment: dict | None = None,
+                 ego_speed_scale: tuple[float, float] = (1.0, 1.0)) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -105,6 +106,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.jitter_m = jitter_m
         self.depth2_kept_only = depth2_kept_only
         self.augment = dict(augment or {})  # keyword arguments of training.augment.augment_masks
+        self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -128,6 +130,13 @@ class PairDataset(torch.utils.data.Dataset):
         c1, c2 = k1[_choose(rng, len(k1), self.n_points)], k2[_choose(rng, len(k2), self.n_points)]
         pc1 = s.pc1[c1].astype(np.float32)
         sf = s.static_flow[c1].astype(np.float32)
+        gt = None if s.gt_flow is None else s.gt_flow[c1].astype(np.float32)
+        if self.ego_speed_scale != (1.0, 1.0):  # drawn only when on: the default draws stay as they were
+            A = speed_scaled_view(s.T, draw_speed_scale(rng, *self.ego_speed_scale))
+            moved = geometry.transform_points(A, pc1.astype(np.float64)).astype(np.float32)
+            sf = pc1 + sf - moved  # the targets in frame t+1 stay where they were
+            gt = None if gt is None else pc1 + gt - moved
+            pc1 = moved
         if self.jitter_deg > 0 or self.jitter_m > 0:
             J = random_rigid(rng, self.jitter_deg, self.jitter_m)
             sf = (geometry.transform_points(J, (pc1 + sf).astype(np.float64)) - pc1).astype(np.float32)
@@ -143,8 +152,8 @@ class PairDataset(torch.utils.data.Dataset):
         out = {"pc1": pc1, "pc2": s.pc2[c2].astype(np.float32), "feat1": f1, "feat2": f2,
                "static_flow": sf, "K": np.asarray(s.K, np.float32), "depth2": depth2,
                "index": np.int64(i)}
-        if s.gt_flow is not None:
-            out["gt_flow"] = s.gt_flow[c1].astype(np.float32)
+        if gt is not None:
+            out["gt_flow"] = gt
         if s.moving is not None:
             out["moving"] = np.asarray(s.moving)[c1].astype(bool)
         return out

@@ -97,6 +97,9 @@ def check_config(cfg: TrainConfig) -> None:
         raise ConfigError("need 0 <= data.lidar_rings <= 1, 0 < data.ring_band <= 1, 0 <= data.density_drop < 1 and "
                           f"data.ground_jitter_m >= 0, got {d.lidar_rings}, {d.ring_band}, {d.density_drop}, "
                           f"{d.ground_jitter_m}")
+    scale = tuple(d.ego_speed_scale)
+    if len(scale) != 2 or not 0 < scale[0] <= scale[1]:
+        raise ConfigError(f"data.ego_speed_scale must be two factors 0 < low <= high, got {d.ego_speed_scale!r}")
     for name in ("log_every", "val_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
@@ -133,7 +136,7 @@ class Trainer:
         d = cfg.data
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
-                                     augment=d.augment())
+                                     augment=d.augment(), ego_speed_scale=d.ego_speed_scale)
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only)
         self.steps = self._total_steps()

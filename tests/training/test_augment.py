@@ -46,3 +46,33 @@ def test_an_augmentation_that_would_empty_a_cloud_is_skipped():
     tiny = _cloud(n=80)
     k1, k2 = augment_masks(np.random.default_rng(0), tiny, tiny, lidar_rings=1.0, ring_band=0.05)
     assert k1.all() and k2.all()
+
+
+def test_speed_scaled_view_keeps_frame_t1_and_scales_the_motion():
+    """A = T'^-1 T: moving frame t's points by A turns the ego-motion into T' = scale x T (angle and
+    translation), and every static point still lands where T put it in frame t+1."""
+    from core.geometry import pose_vec_to_mat, rotation_angle, transform_points
+    from training.augment import speed_scaled_view
+
+    T = pose_vec_to_mat(np.array([0.1, -0.02, 1.1, 0.004, 0.03, -0.002]))
+    pts = np.random.default_rng(0).uniform(-10, 30, size=(50, 3))
+    for scale in (0.5, 1.0, 1.7):
+        A = speed_scaled_view(T, scale)
+        T_new = T @ np.linalg.inv(A)  # the motion from the moved camera t to camera t+1
+        assert np.allclose(T_new[:3, 3], scale * T[:3, 3], atol=1e-9)
+        assert np.isclose(rotation_angle(T_new[:3, :3]), scale * rotation_angle(T[:3, :3]), atol=1e-9)
+        moved = transform_points(A, pts)
+        assert np.allclose(transform_points(T_new, moved), transform_points(T, pts), atol=1e-9)
+    assert np.allclose(speed_scaled_view(T, 1.0), np.eye(4), atol=1e-12)
+
+
+def test_draw_speed_scale_is_log_uniform_and_off_draws_nothing():
+    from training.augment import draw_speed_scale
+
+    rng = np.random.default_rng(1)
+    state = rng.bit_generator.state
+    assert draw_speed_scale(rng, 1.0, 1.0) == 1.0 and rng.bit_generator.state == state
+    s = np.array([draw_speed_scale(rng, 0.5, 2.0) for _ in range(4000)])
+    assert s.min() >= 0.5 and s.max() <= 2.0
+    # log-uniform on [1/2, 2]: half the draws below 1 (binomial sd 0.008 at n=4000; 5 sd margin)
+    assert abs((s < 1.0).mean() - 0.5) < 0.04

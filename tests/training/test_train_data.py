@@ -157,3 +157,27 @@ def test_fixture_gt_flow_lands_on_frame_two_surfaces(tiny_cache):  # noqa: F811
         assert 0.1 < s.moving.mean() < 0.4  # the moving panel is in view
         static = ~s.moving
         assert np.array_equal(s.gt_flow[static], s.static_flow[static])
+
+
+def test_ego_speed_scale_moves_frame_t_only(tiny_cache):  # noqa: F811
+    """The speed augmentation moves frame t's points (A = T'^-1 T) and leaves frame t+1 and every target
+    there as it was: pc1 + static_flow and pc1 + gt_flow are unchanged, pc2 too; off, nothing changes."""
+    r = CacheReader(tiny_cache)
+    plain = PairDataset(r, [3, 9], 256, seed=0)[1]
+    fast = PairDataset(r, [3, 9], 256, seed=0, ego_speed_scale=(1.5, 1.5))[1]
+    assert np.array_equal(plain["pc2"], fast["pc2"])
+    assert not np.allclose(plain["pc1"], fast["pc1"], atol=1e-3)
+    for key in ("static_flow", "gt_flow"):
+        assert np.allclose(plain["pc1"] + plain[key], fast["pc1"] + fast[key], atol=1e-4), key
+    # the static flow is now 1.5x the camera's translation (to first order in the small rotation)
+    T = r[9].T.astype(np.float64)
+    far = np.linalg.norm(fast["static_flow"].mean(0)) / np.linalg.norm(plain["static_flow"].mean(0))
+    assert abs(far - 1.5) < 0.1, (far, T[:3, 3])
+    same = PairDataset(r, [3, 9], 256, seed=0, ego_speed_scale=(1.0, 1.0))[1]
+    assert all(np.array_equal(plain[k], same[k]) for k in plain)
+
+
+def test_ego_speed_scale_is_checked(tiny_cache, tmp_path):  # noqa: F811
+    cfg = tiny_config(tiny_cache, tmp_path / "bad", data={"ego_speed_scale": (2.0, 0.5)})
+    with pytest.raises(ConfigError, match="ego_speed_scale"):
+        Trainer(cfg)
