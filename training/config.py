@@ -107,6 +107,12 @@ class LossWeights:
         edge (2×2 pixels spanning more than this fraction); 0 = plain bilinear sampling (the paper).
     depth_norm: ``l1`` (the residual's length, default) or ``l2`` (its square, the paper's form).
     knn_backend: "auto" | "kdtree" | "torch" neighbour search of the Laplacian terms (see training.knn).
+    pc2_target: which frame-(t+1) points every level's Chamfer and Laplacian terms compare with: ``level``
+        (the paper: pc2 sampled at the same level) or ``finest`` (the finest level's pc2 points at every
+        level). At the coarse levels a 16- or 64-point pc2 sample is so sparse that the Chamfer distance is
+        mostly sampling noise (the objective audit: the same ≈8 m² at the true flow and at the ego-motion
+        alone), so the paper's coarse terms reward moving points onto other random points; against the
+        finest level's points they measure the distance to the surfaces again (docs/learned-flow.md).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -123,6 +129,7 @@ class LossWeights:
     depth_edge_tolerance: float = 0.05
     depth_norm: str = "l1"
     knn_backend: KnnBackend = "auto"
+    pc2_target: str = "level"
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -139,6 +146,8 @@ class LossWeights:
             raise ConfigError(f"depth_variant must be one of {DEPTH_VARIANTS}, got {self.depth_variant!r}")
         if self.laplacian_k < 1 or self.interp_k < 1:
             raise ConfigError(f"laplacian_k and interp_k must be ≥ 1, got {self.laplacian_k}, {self.interp_k}")
+        if self.pc2_target not in ("level", "finest"):
+            raise ConfigError(f"pc2_target must be 'level' or 'finest', got {self.pc2_target!r}")
 
 
 @dataclass

@@ -51,7 +51,7 @@ def validation_sums(model, batches, loss_weights, device) -> "np.ndarray":
     for samples in batches:
         batch = collate(samples).to(device)
         out_o, out_d = forward_two_passes(model, batch)
-        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d), loss_weights)
+        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d, loss_weights.pc2_target), loss_weights)
         e, n = epe3d(out_o, batch) if batch.gt_flow is not None else (0.0, 0)
         cyc = float(cycle_error(model, batch.pc1, batch.feat1, out_o).sum())
         k = len(samples)

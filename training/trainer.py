@@ -247,7 +247,7 @@ class Trainer:
             out_o, out_d = forward_two_passes(self.net, batch)
         self._sync()
         t1 = time.perf_counter()
-        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d), self.cfg.loss)
+        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d, self.cfg.loss.pc2_target), self.cfg.loss)
         t2 = time.perf_counter()
         bad = [k for k, v in terms.items() if not math.isfinite(v)]
         self._stop_if_not_finite("loss", float(total.detach()), "terms " + ", ".join(bad) if bad else "total")

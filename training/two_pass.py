@@ -32,11 +32,14 @@ def forward_two_passes(net: FlowNet, batch: FlowBatch) -> tuple[FlowOutput, Flow
     return out_o, out_d
 
 
-def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput) -> list[LevelInputs]:
-    """Per pyramid level (finest first): the level's points and flows the losses need."""
+def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_target: str = "level"
+                 ) -> list[LevelInputs]:
+    """Per pyramid level (finest first): the level's points and flows the losses need; the pc2 points are
+    the level's own (``pc2_target="level"``, the paper) or the finest level's (``"finest"``,
+    :class:`training.config.LossWeights`)."""
     levels = []
     for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
-        idx1, idx2 = out_o.indices[l], out_o.indices2[l]
+        idx1, idx2 = out_o.indices[l], out_o.indices2[0 if pc2_target == "finest" else l]
         levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=gather(batch.pc2, idx2), flow_o=f_o.float(),
                                   flow_d=f_d.float(), static_flow=gather(batch.static_flow, idx1), K=batch.K,
                                   depth2=batch.depth2))
