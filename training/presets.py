@@ -9,8 +9,9 @@ from typing import Any
 def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int = 2048, width_scale: float = 0.5,
                       seed: int = 0, overrides: dict[str, Any] | None = None):
     """The demo's :class:`~training.config.TrainConfig`: a half-width net at 2048 points, batch 4, on
-    geometry alone (the LiDAR-like test splits have no colours), with the rigid ego-motion head and the
-    camera-to-LiDAR augmentations; ``overrides`` are dotted ``{"model.ego_head": False}`` pairs."""
+    geometry alone (the LiDAR-like test splits have no colours), with the rigid ego-motion head, the
+    camera-to-LiDAR augmentations and camera speeds rescaled ×½ … ×2 (``data.ego_speed_scale``,
+    docs/learned-flow.md); ``overrides`` are dotted ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
 
@@ -18,7 +19,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "cache": cache, "run_dir": run_dir, "steps": steps, "seed": seed, "device": "auto",
         "log_every": max(1, steps // 20), "val_every": max(1, steps // 5), "ckpt_every": max(1, steps // 5),
         "data": {"n_points": n_points, "workers": 1, "colour_features": False,
-                 "lidar_rings": 0.5, "density_drop": 0.3, "ground_jitter_m": 0.3},
+                 "lidar_rings": 0.5, "density_drop": 0.3, "ground_jitter_m": 0.3, "ego_speed_scale": [0.5, 2.0]},
         "optim": {"batch_size": 4},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True},
