@@ -1,0 +1,109 @@
+"""Where a flow net's test error comes from: the unseen sequence, the sensor, or the ego-motion.
+
+Scores checkpoints under the ``fps`` protocol (the net's point counts) on
+
+* ``cam-val`` — held-out camera-cloud pairs of a training cache (stage one's clouds, labelled);
+* ``cam-test`` — a cache built by stage one from the *test* sequence (the same scenes as the LiDAR split,
+  seen by the training sensor), when ``--test-cache`` is given;
+* every ``--split NAME=FOLDER`` (LiDAR scene-flow splits),
+
+with ICP and FGR on the same points, and reports for every split the rigid ego-motion implied by the net's
+flow on static points (Kabsch fit; camera-1 → camera-2 frame, metres): its translation length against the
+true one and the error of the translation and rotation. Used for docs/learned-flow.md ("Second round")::
+
+    python -m benchmarks.sensor_gap --checkpoint runs/curve/step_000500.pt,runs/curve/step_001000.pt \\
+        --cache w/cache/world/<hash> --test-cache w/cache06/world/<hash> --split own=w/world/sceneflow/flownet3d
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def cache_samples(root: str, indices: list[int] | None, tag: str) -> list:
+    """Labelled camera-cloud pairs of a stage-one cache as scene-flow samples (camera frames, metres)."""
+    from evaluation.sample import SceneFlowSample
+    from pipeline.cache import CacheReader
+
+    reader = CacheReader(root)
+    out = []
+    for i in (range(len(reader)) if indices is None else indices):
+        s = reader[i]
+        if s.gt_flow is None:
+            continue
+        out.append(SceneFlowSample(name=f"{tag}{i:05d}", pc1=s.pc1.astype(np.float32), pc2=s.pc2.astype(np.float32),
+                                   flow=s.gt_flow.astype(np.float32),
+                                   moving=None if s.moving is None else np.asarray(s.moving, bool)))
+    return out
+
+
+def ego_errors(method, split, cfg) -> dict[str, float]:
+    """Mean |t_true|, |t_net|, translation error (m) and rotation error (degrees) of the rigid motion fitted
+    to the net's flow and to the true flow on each scene's static points."""
+    import torch
+
+    from core.geometry import rotation_angle
+    from evaluation.protocols import prepare_scene
+    from training.model.ego_motion import weighted_rigid_fit
+
+    def fit(p, f):
+        t = lambda x: torch.tensor(x[None], dtype=torch.float64)  # noqa: E731
+        R, tr = weighted_rigid_fit(t(p), t(p + f), torch.ones(1, len(p), dtype=torch.float64))
+        return R[0].numpy(), tr[0].numpy()
+
+    rows = []
+    for sample in split:
+        if sample.moving is None:
+            continue
+        scene = prepare_scene(sample, cfg, cfg.seeds[0])
+        flow = method(scene.pc1, scene.pc2)
+        static = ~sample.moving[scene.index1]
+        Rg, tg = fit(scene.pc1[static], sample.flow[scene.index1][static])
+        Rn, tn = fit(scene.pc1[static], flow[static])
+        rows.append([np.linalg.norm(tg), np.linalg.norm(tn), np.linalg.norm(tn - tg),
+                     np.degrees(float(rotation_angle(Rg.T @ Rn)))])
+    mean = np.mean(rows, axis=0) if rows else np.full(4, np.nan)
+    return dict(zip(("t_true", "t_net", "t_err", "rot_err_deg"), map(float, mean)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="sensor_gap", description=__doc__.split("\n\n")[0])
+    p.add_argument("--checkpoint", required=True, help="comma list of flow checkpoints")
+    p.add_argument("--cache", required=True, help="the training cache (its held-out pairs are cam-val)")
+    p.add_argument("--test-cache", help="stage one run on the test sequence (cam-test)")
+    p.add_argument("--split", action="append", default=[], help="NAME=FOLDER of a LiDAR scene-flow split")
+    p.add_argument("--max-scenes", type=int, default=40)
+    args = p.parse_args(argv)
+
+    from evaluation.methods import NetMethod, make_baseline
+    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+    from evaluation.readers import load_split
+    from pipeline.cache import CacheReader
+    from training.data import train_val_split
+
+    nets = [NetMethod(c, name=f"net {c}") for c in args.checkpoint.split(",")]
+    _, val = train_val_split(CacheReader(args.cache), 0.1, 64)
+    splits = {"cam-val": cache_samples(args.cache, val[: args.max_scenes], "v")}
+    if args.test_cache:
+        splits["cam-test"] = cache_samples(args.test_cache, None, "t")[: args.max_scenes]
+    for item in args.split:
+        name, folder = item.split("=", 1)
+        splits[name] = list(load_split(folder, "auto"))[: args.max_scenes]
+    cfg = ProtocolConfig(protocol="fps", n_points=nets[0].n_points, n_score=nets[0].n_score, seeds=(0,),
+                         warmup=False).validate()
+    methods = nets + [make_baseline("icp-p2p"), make_baseline("fgr")]
+    for name, split in splits.items():
+        for r in summary_rows(run_protocol(split, methods, cfg, progress=False)):
+            print(f"{name:10s} n={len(split):3d} {r['method']:40s} EPE3D {r['EPE3D']:.3f} "
+                  f"static {r.get('EPE3D_static', float('nan')):.3f} moving {r.get('EPE3D_moving', float('nan')):.3f}")
+        for net in nets:
+            e = ego_errors(net, split, cfg)
+            print(f"{name:10s} {net.name:40s} ego-motion: |t| true {e['t_true']:.2f} m, net {e['t_net']:.2f} m, "
+                  f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
