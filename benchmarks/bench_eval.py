@@ -62,6 +62,15 @@ def _split(args, tmp: Path):
     return dataclasses.replace(split, entries=split.entries[: args.scenes])
 
 
+def machine_line(cuda: bool = False) -> str:
+    """The header line of a timing table: torch, CPU, threads (and CUDA when asked), the load average now."""
+    import torch
+
+    return (f"torch {torch.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+            f"torch threads {torch.get_num_threads()}, " + (f"CUDA {torch.cuda.is_available()}, " if cuda else "")
+            + f"load average {os.getloadavg()[0]:.2f}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--split", default="", help="a scene-flow split (default: a generated synthetic one)")
@@ -78,8 +87,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"torch threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}")
+    print(machine_line())
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         split = _split(args, tmp)

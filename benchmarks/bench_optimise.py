@@ -18,16 +18,14 @@ Prints a Markdown table; timings on a shared machine are noisy, so the load aver
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
-import platform
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.bench_eval import _checkpoint, _split  # noqa: E402  (same split and checkpoint set-up)
+from benchmarks.bench_eval import _checkpoint, _split, machine_line  # noqa: E402  (same split, checkpoint, header)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -49,15 +47,12 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"torch threads {torch.get_num_threads()}, CUDA {torch.cuda.is_available()}, "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(machine_line(cuda=True))
     devices = [d for d in args.devices.split(",") if d == "cpu" or (d == "cuda" and torch.cuda.is_available())]
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         args.scenes = max(1, args.scenes)
-        split = _split(args, tmp)
-        split = dataclasses.replace(split, entries=split.entries[: args.scenes])
+        split = _split(args, tmp)  # already cut to args.scenes
         ckpt = args.checkpoint or str(_checkpoint(tmp, "demo", args.n_points, 0.5))
         cfg = ProtocolConfig(n_points=args.n_points, n_score=args.n_score)
         print(f"{len(split)} scenes of {split.root}; {args.n_points} points sampled, {args.n_score} scored; "
