@@ -1,7 +1,7 @@
 """Augmentations that bridge stage one's camera clouds and LiDAR test clouds (``DataConfig``).
 
 Stage one's clouds are back-projected depth pixels: one point per kept pixel, both frames sampled on
-the image grid, the ground removed by a fitted plane. The KITTI scene-flow test clouds are LiDAR scans:
+the image grid, the ground removed at a fixed height below the camera (``FilterConfig.ground_max_y``). The KITTI scene-flow test clouds are LiDAR scans:
 points on the scanner's rings, a density that changes between the two frames, and the ground removed by
 a height threshold that leaves a varying rim of low points. A net that only saw the first kind learns
 their regularities. Each augmentation picks a subset of a pair's points (frames: camera, x right, y down,

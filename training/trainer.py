@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from core.errors import ConfigError, InputError, TrainingDiverged
 from core.options import flatten
@@ -43,7 +42,6 @@ from training.data import (
     train_val_split,
 )
 from training.losses.total import multi_level_loss
-from training.model.contract import FlowNet
 from training.model.registry import config_class, construct_model
 from training.runtime import checkpoints, distributed
 from training.runtime.device import resolve_device
