@@ -1,6 +1,7 @@
 """The names of options that configs check, torch-free so that the configs (and ``--help``) load without
 torch: the kNN backends (:mod:`training.knn`), the depth-consistency variants
-(:mod:`training.losses.depth_consistency`) and the orders of the level factors α (:mod:`training.losses.total`)."""
+(:mod:`training.losses.depth_consistency`), the orders of the level factors α (:mod:`training.losses.total`) and
+the pc2 points each level's Chamfer and Laplacian compare with (:func:`training.two_pass.level_inputs`)."""
 
 from __future__ import annotations
 
@@ -14,3 +15,6 @@ DEPTH_VARIANTS: tuple[str, ...] = ("paper", "released")
 
 AlphaOrder = Literal["released", "paper"]
 ALPHA_ORDERS: tuple[str, ...] = ("released", "paper")
+
+Pc2Target = Literal["level", "finest"]
+PC2_TARGETS: tuple[str, ...] = ("level", "finest")

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from core.errors import ConfigError
-from training.choices import ALPHA_ORDERS, DEPTH_VARIANTS, AlphaOrder, DepthVariant, KnnBackend
+from training.choices import ALPHA_ORDERS, DEPTH_VARIANTS, PC2_TARGETS, AlphaOrder, DepthVariant, KnnBackend, Pc2Target
 from training.model.contract import FlowNetConfig
 from training.model.halflownet_config import HALFlowConfig, level_points_for  # noqa: F401  (re-exported)
 from training.model.registry import DEFAULT_NET, config_class
@@ -129,7 +129,7 @@ class LossWeights:
     depth_edge_tolerance: float = 0.05
     depth_norm: str = "l1"
     knn_backend: KnnBackend = "auto"
-    pc2_target: str = "level"
+    pc2_target: Pc2Target = "level"
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -146,8 +146,8 @@ class LossWeights:
             raise ConfigError(f"depth_variant must be one of {DEPTH_VARIANTS}, got {self.depth_variant!r}")
         if self.laplacian_k < 1 or self.interp_k < 1:
             raise ConfigError(f"laplacian_k and interp_k must be ≥ 1, got {self.laplacian_k}, {self.interp_k}")
-        if self.pc2_target not in ("level", "finest"):
-            raise ConfigError(f"pc2_target must be 'level' or 'finest', got {self.pc2_target!r}")
+        if self.pc2_target not in PC2_TARGETS:
+            raise ConfigError(f"pc2_target must be one of {PC2_TARGETS}, got {self.pc2_target!r}")
 
 
 @dataclass
