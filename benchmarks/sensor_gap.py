@@ -22,12 +22,11 @@ import argparse
 import numpy as np
 
 
-def cache_samples(root: str, indices: list[int] | None, tag: str) -> list:
-    """Labelled camera-cloud pairs of a stage-one cache as scene-flow samples (camera frames, metres)."""
+def cache_samples(reader, indices: list[int] | None, tag: str) -> list:
+    """Labelled camera-cloud pairs of a stage-one cache (a :class:`pipeline.cache.CacheReader`) as scene-flow
+    samples (camera frames, metres)."""
     from evaluation.sample import SceneFlowSample
-    from pipeline.cache import CacheReader
 
-    reader = CacheReader(root)
     out = []
     for i in (range(len(reader)) if indices is None else indices):
         s = reader[i]
@@ -77,26 +76,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-scenes", type=int, default=40)
     args = p.parse_args(argv)
 
+    from benchmarks.learning_curve import score_splits
     from evaluation.methods import NetMethod, make_baseline
-    from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
+    from evaluation.protocols import ProtocolConfig
     from evaluation.readers import load_split
     from pipeline.cache import CacheReader
+    from training.config import DataConfig
     from training.data import train_val_split
 
     nets = [NetMethod(c, name=f"net {c}") for c in args.checkpoint.split(",")]
-    _, val = train_val_split(CacheReader(args.cache), 0.1, 64)
-    splits = {"cam-val": cache_samples(args.cache, val[: args.max_scenes], "v")}
+    held = {**vars(DataConfig()), **(nets[0].run_config.get("data") or {})}  # what the first net's run held out
+    reader = CacheReader(args.cache)
+    _, val = train_val_split(reader, held["val_fraction"], held["val_pairs_max"])
+    splits = {"cam-val": cache_samples(reader, val[: args.max_scenes], "v")}
     if args.test_cache:
-        splits["cam-test"] = cache_samples(args.test_cache, None, "t")[: args.max_scenes]
+        splits["cam-test"] = cache_samples(CacheReader(args.test_cache), None, "t")[: args.max_scenes]
     for item in args.split:
         name, folder = item.split("=", 1)
         splits[name] = list(load_split(folder, "auto"))[: args.max_scenes]
-    cfg = ProtocolConfig(protocol="fps", n_points=nets[0].n_points, n_score=nets[0].n_score, seeds=(0,),
-                         warmup=False).validate()
-    methods = nets + [make_baseline("icp-p2p"), make_baseline("fgr")]
+    n_points, n_score = nets[0].n_points, nets[0].n_score
+    scores = score_splits(nets + [make_baseline("icp-p2p"), make_baseline("fgr")], splits, n_points, n_score)
+    cfg = ProtocolConfig(protocol="fps", n_points=n_points, n_score=n_score, seeds=(0,), warmup=False).validate()
     for name, split in splits.items():
-        for r in summary_rows(run_protocol(split, methods, cfg, progress=False)):
-            print(f"{name:10s} n={len(split):3d} {r['method']:40s} EPE3D {r['EPE3D']:.3f} "
+        for method, r in scores[name].items():
+            print(f"{name:10s} n={len(split):3d} {method:40s} EPE3D {r['EPE3D']:.3f} "
                   f"static {r.get('EPE3D_static', float('nan')):.3f} moving {r.get('EPE3D_moving', float('nan')):.3f}")
         for net in nets:
             e = ego_errors(net, split, cfg)
