@@ -17,7 +17,9 @@ z forward, metres), seeded by the pair's draw, before the ``n_points`` are sampl
 
 One augmentation changes the motion instead of the points kept: ``ego_speed_scale`` (:func:`speed_scaled_view`)
 makes a pair look as if the camera had moved a factor faster or slower between t and t+1, so that the
-net meets camera speeds beyond the few the training sequences drove at.
+net meets camera speeds beyond the few the training sequences drove at. Another changes the street:
+``mirror`` (:func:`mirror_pair`) reflects a whole pair left–right, a street the world never drove (traffic
+on the other side, every turn the other way), with the depth map and intrinsics reflected to match.
 """
 
 from __future__ import annotations
@@ -87,3 +89,26 @@ def draw_speed_scale(rng: np.random.Generator, low: float, high: float) -> float
     if low == high:
         return float(low)
     return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
+def mirror_pair(sample: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The pair reflected left–right (x → −x in both camera frames), in place of ``sample``'s arrays.
+
+    A reflected street is as physical as the original one, so every loss keeps its meaning if the
+    frame-(t+1) depth map and the intrinsics are reflected with the points: a point (x, y, z) projects to
+    column ``u = fx x / z + cx``; its mirror (−x, y, z) must land on the mirrored column ``W − 1 − u``, so
+    ``cx' = W − 1 − cx`` and ``depth2'[:, u] = depth2[:, W − 1 − u]``. Points, static flow and the flow
+    target are (N, 3) metres, camera frames (x right, y down, z forward); K (3, 3) pixels; depth2 (H, W).
+    """
+    out = dict(sample)
+    flip = np.array([-1.0, 1.0, 1.0], np.float32)
+    for key in ("pc1", "pc2", "static_flow", "gt_flow"):
+        if key in out:
+            out[key] = (out[key] * flip).astype(np.float32)
+    K = np.array(out["K"], np.float32)
+    width = out["depth2"].shape[1]
+    K[0, 2] = (width - 1) - K[0, 2]
+    K[0, 1] = -K[0, 1]  # a skew term changes sign with x (zero for every camera here)
+    out["K"] = K
+    out["depth2"] = np.ascontiguousarray(out["depth2"][:, ::-1])
+    return out

@@ -47,6 +47,9 @@ class DataConfig:
         log-uniformly in this range (rotation angle and translation alike; frame t's cloud is moved, frame
         t+1 and its depth map stay, :func:`training.augment.speed_scaled_view`), so the net learns camera
         speeds beyond the ones its sequences drove at (KITTI: 0–2.5 m per frame); (1, 1) = off.
+    mirror: probability per training pair of reflecting it left–right (points, flows, the frame-(t+1)
+        depth map and the intrinsics' principal point, :func:`training.augment.mirror_pair`): streets
+        the training sequences never drove; 0 = off.
     """
 
     n_points: int = 8192
@@ -62,6 +65,7 @@ class DataConfig:
     density_drop: float = 0.0
     ground_jitter_m: float = 0.0
     ego_speed_scale: tuple[float, float] = (1.0, 1.0)
+    mirror: float = 0.0
 
     def augment(self) -> dict:
         """The keyword arguments of :func:`training.augment.augment_masks` for training pairs."""

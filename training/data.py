@@ -17,7 +17,7 @@ from torch import Tensor
 
 from core import geometry
 from core.errors import ConfigError, InputError
-from training.augment import augment_masks, draw_speed_scale, speed_scaled_view
+from training.augment import augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -96,7 +96,7 @@ class PairDataset(torch.utils.data.Dataset):
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
                  depth2_kept_only: bool = False, augment: dict | None = None,
-                 ego_speed_scale: tuple[float, float] = (1.0, 1.0)) -> None:
+                 ego_speed_scale: tuple[float, float] = (1.0, 1.0), mirror: float = 0.0) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -107,6 +107,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.depth2_kept_only = depth2_kept_only
         self.augment = dict(augment or {})  # keyword arguments of training.augment.augment_masks
         self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
+        self.mirror = float(mirror)
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -156,6 +157,8 @@ class PairDataset(torch.utils.data.Dataset):
             out["gt_flow"] = gt
         if s.moving is not None:
             out["moving"] = np.asarray(s.moving)[c1].astype(bool)
+        if self.mirror > 0 and rng.random() < self.mirror:  # drawn only when on
+            out = mirror_pair(out)
         return out
 
 

@@ -98,6 +98,8 @@ def check_config(cfg: TrainConfig) -> None:
     scale = tuple(d.ego_speed_scale)
     if len(scale) != 2 or not 0 < scale[0] <= scale[1]:
         raise ConfigError(f"data.ego_speed_scale must be two factors 0 < low <= high, got {d.ego_speed_scale!r}")
+    if not 0 <= d.mirror <= 1:
+        raise ConfigError(f"data.mirror is a probability in [0, 1], got {d.mirror}")
     for name in ("log_every", "val_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
@@ -134,7 +136,8 @@ class Trainer:
         d = cfg.data
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
-                                     augment=d.augment(), ego_speed_scale=d.ego_speed_scale)
+                                     augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
+                                     mirror=d.mirror)
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only)
         self.steps = self._total_steps()

@@ -181,3 +181,29 @@ def test_ego_speed_scale_is_checked(tiny_cache, tmp_path):  # noqa: F811
     cfg = tiny_config(tiny_cache, tmp_path / "bad", data={"ego_speed_scale": (2.0, 0.5)})
     with pytest.raises(ConfigError, match="ego_speed_scale"):
         Trainer(cfg)
+
+
+def test_mirror_reflects_points_depth_map_and_intrinsics_together(tiny_cache):  # noqa: F811
+    """A mirrored pair is the same pair with x negated, and it is still consistent: frame t's points moved
+    by the true flow project, through the mirrored intrinsics, onto the mirrored depth map at their own
+    depth, as they do in the original pair; off, nothing is drawn."""
+    r = CacheReader(tiny_cache)
+    plain = PairDataset(r, [3, 9], 256, seed=0)[1]
+    mirrored = PairDataset(r, [3, 9], 256, seed=0, mirror=1.0)[1]
+    for key in ("pc1", "pc2", "static_flow", "gt_flow"):
+        assert np.allclose(mirrored[key][:, 0], -plain[key][:, 0]) and np.allclose(mirrored[key][:, 1:], plain[key][:, 1:])
+    assert not np.allclose(mirrored["depth2"], plain["depth2"])
+
+    def landed(d):  # share of warped points whose depth-map sample matches their depth within 1 cm
+        warped = d["pc1"] + d["gt_flow"]
+        uv = warped[:, :2] / warped[:, 2:] * np.diag(d["K"])[:2] + d["K"][:2, 2]
+        u, v = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
+        inside = (u >= 0) & (u < d["depth2"].shape[1]) & (v >= 0) & (v < d["depth2"].shape[0])
+        return np.mean(np.abs(d["depth2"][v[inside], u[inside]] - warped[inside, 2]) < 0.01)
+
+    assert landed(plain) > 0.85 and landed(mirrored) > 0.85
+    width = plain["depth2"].shape[1]
+    assert np.isclose(mirrored["K"][0, 2], width - 1 - plain["K"][0, 2])
+    assert np.array_equal(mirrored["depth2"][:, ::-1], plain["depth2"])
+    off = PairDataset(r, [3, 9], 256, seed=0, mirror=0.0)[1]
+    assert all(np.array_equal(plain[k], off[k]) for k in plain)
