@@ -102,7 +102,7 @@ def mirror_pair(sample: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """
     out = dict(sample)
     flip = np.array([-1.0, 1.0, 1.0], np.float32)
-    for key in ("pc1", "pc2", "static_flow", "gt_flow"):
+    for key in ("pc1", "pc2", "static_flow", "gt_flow", "pc2_target"):
         if key in out:
             out[key] = (out[key] * flip).astype(np.float32)
     K = np.array(out["K"], np.float32)

@@ -16,5 +16,5 @@ DEPTH_VARIANTS: tuple[str, ...] = ("paper", "released")
 AlphaOrder = Literal["released", "paper"]
 ALPHA_ORDERS: tuple[str, ...] = ("released", "paper")
 
-Pc2Target = Literal["level", "finest"]
-PC2_TARGETS: tuple[str, ...] = ("level", "finest")
+Pc2Target = Literal["level", "finest", "independent"]
+PC2_TARGETS: tuple[str, ...] = ("level", "finest", "independent")

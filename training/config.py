@@ -83,6 +83,9 @@ class OptimConfig:
     lr_min: the learning rate never goes below this.
     batch_size: pairs per optimiser step (global, over all processes).
     grad_clip: clip the gradient norm to this (0 = no clipping).
+    ema_decay: 0 = off; else validation, every checkpoint's inference weights and so every evaluation use
+        an exponential moving average of the trained weights with this decay per step (Polyak averaging,
+        :mod:`training.runtime.ema`; 0.99 averages over roughly the last 100 steps).
     """
 
     lr: float = 1e-3
@@ -91,6 +94,7 @@ class OptimConfig:
     lr_min: float = 1e-4
     batch_size: int = 5
     grad_clip: float = 0.0
+    ema_decay: float = 0.0
 
 
 
@@ -117,6 +121,12 @@ class LossWeights:
         mostly sampling noise (the objective audit: the same ≈8 m² at the true flow and at the ego-motion
         alone), so the paper's coarse terms reward moving points onto other random points; against the
         finest level's points they measure the distance to the surfaces again (docs/learned-flow.md).
+        ``independent``: a second draw of frame t+1's points, disjoint from the net's input where the cloud
+        has enough points and taken before the input-only augmentations (rings, density drop, ground cut),
+        farthest-point sampled to every level's size. The net sees its pc2 sample; the loss measures the
+        distance to other samples of the same surfaces, so moving points onto the input's pc2 points — its
+        sampling pattern, which a LiDAR's rings tie to the sensor — no longer lowers the loss, only landing
+        on the surfaces does (docs/learned-flow.md, third round).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)

@@ -29,7 +29,9 @@ class FlowBatch:
     pc1, pc2: (B, N, 3) float32 metres; feat1, feat2: (B, N, 3) RGB in [0, 1] or zeros;
     static_flow: (B, N, 3) flow the camera motion explains, pc1's points (already jittered when the
         jitter augmentation is on); K: (B, 3, 3) pixels; depth2: (B, H, W) metres, 0 = invalid;
-    gt_flow: (B, N, 3) or None; moving: (B, N) bool or None; index: (B,) pair indices in the cache.
+    gt_flow: (B, N, 3) or None; moving: (B, N) bool or None; index: (B,) pair indices in the cache;
+    pc2_target: (B, N, 3) or None, a second draw of frame t+1's points for the loss (``loss.pc2_target
+        independent``), camera-(t+1) frame, metres.
     """
 
     pc1: Tensor
@@ -42,6 +44,7 @@ class FlowBatch:
     index: Tensor
     gt_flow: Tensor | None = None
     moving: Tensor | None = None
+    pc2_target: Tensor | None = None
 
     def __post_init__(self) -> None:
         B, N, _ = self.pc1.shape
@@ -51,6 +54,8 @@ class FlowBatch:
             expect["gt_flow"] = (B, N, 3)
         if self.moving is not None:
             expect["moving"] = (B, N)
+        if self.pc2_target is not None:
+            expect["pc2_target"] = (B, None, 3)
         for name, shape in expect.items():
             got = tuple(getattr(self, name).shape)
             if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
@@ -68,6 +73,15 @@ def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
         return rng.choice(n_have, size=n_want, replace=False)
     extra = rng.choice(n_have, size=n_want - n_have, replace=True)
     return rng.permutation(np.concatenate([np.arange(n_have), extra]))
+
+
+def independent_draw(rng: np.random.Generator, n_have: int, taken: np.ndarray, n_want: int) -> np.ndarray:
+    """``n_want`` indices into ``n_have`` points, avoiding the ``taken`` ones (the net's input) as far as the
+    cloud allows: the untaken points first (without replacement), topped up from the whole cloud."""
+    rest = np.setdiff1d(np.arange(n_have), taken)
+    if len(rest) >= n_want:
+        return rng.choice(rest, size=n_want, replace=False)
+    return rng.permutation(np.concatenate([rest, rng.choice(n_have, size=n_want - len(rest), replace=True)]))
 
 
 def random_rigid(rng: np.random.Generator, max_deg: float, max_m: float) -> np.ndarray:
@@ -96,7 +110,8 @@ class PairDataset(torch.utils.data.Dataset):
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
                  depth2_kept_only: bool = False, augment: dict | None = None,
-                 ego_speed_scale: tuple[float, float] = (1.0, 1.0), mirror: float = 0.0) -> None:
+                 ego_speed_scale: tuple[float, float] = (1.0, 1.0), mirror: float = 0.0,
+                 target_draw: bool = False) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -108,6 +123,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.augment = dict(augment or {})  # keyword arguments of training.augment.augment_masks
         self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
         self.mirror = float(mirror)
+        self.target_draw = target_draw  # also draw ``pc2_target`` (loss.pc2_target independent)
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -157,6 +173,8 @@ class PairDataset(torch.utils.data.Dataset):
             out["gt_flow"] = gt
         if s.moving is not None:
             out["moving"] = np.asarray(s.moving)[c1].astype(bool)
+        if self.target_draw:  # drawn only when on
+            out["pc2_target"] = s.pc2[independent_draw(rng, len(s.pc2), c2, self.n_points)].astype(np.float32)
         if self.mirror > 0 and rng.random() < self.mirror:  # drawn only when on
             out = mirror_pair(out)
         return out
@@ -192,7 +210,8 @@ def collate(samples: list) -> FlowBatch | LoadFailure:
 
     return FlowBatch(pc1=stack("pc1"), pc2=stack("pc2"), feat1=stack("feat1"), feat2=stack("feat2"),
                      static_flow=stack("static_flow"), K=stack("K"), depth2=stack("depth2"),
-                     index=stack("index"), gt_flow=stack("gt_flow"), moving=stack("moving"))
+                     index=stack("index"), gt_flow=stack("gt_flow"), moving=stack("moving"),
+                     pc2_target=stack("pc2_target"))
 
 
 def pairs_with_gt_flow(reader) -> set[int]:

@@ -89,7 +89,7 @@ def score_checkpoint(train_config, checkpoint, device: str = "cpu") -> dict[str,
     reader = CacheReader(cfg.cache)
     _, val_idx = train_val_split(reader, d.val_fraction, d.val_pairs_max)
     val_set = PairDataset(reader, val_idx, d.n_points, cfg.seed, d.colour_features, fixed_epoch=-1,
-                          depth2_kept_only=d.depth2_kept_only)
+                          depth2_kept_only=d.depth2_kept_only, target_draw=cfg.loss.pc2_target == "independent")
     bs = cfg.optim.batch_size
     batches = ([val_set[p] for p in range(s, min(s + bs, len(val_idx)))] for s in range(0, len(val_idx), bs))
     return scores_from_sums(validation_sums(model, batches, cfg.loss, torch.device(device)))

@@ -45,6 +45,7 @@ from training.losses.total import multi_level_loss
 from training.model.registry import config_class, construct_model
 from training.runtime import checkpoints, distributed
 from training.runtime.device import resolve_device
+from training.runtime.ema import WeightAverage
 from training.runtime.logs import MetricLogger
 from training.runtime.rundir import save_run_info
 from training.two_pass import forward_two_passes, level_inputs
@@ -105,6 +106,8 @@ def check_config(cfg: TrainConfig) -> None:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
     if cfg.optim.batch_size < 1 or cfg.optim.decay_every_samples < 1 or not cfg.optim.lr > 0:
         raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1 and lr > 0, got {cfg.optim}")
+    if not 0 <= cfg.optim.ema_decay < 1:
+        raise ConfigError(f"optim.ema_decay must be 0 (off) or in (0, 1), got {cfg.optim.ema_decay}")
     if cfg.threads < 0 or cfg.data.workers < 0:
         raise ConfigError(f"threads and data.workers must be >= 0, got {cfg.threads} and {cfg.data.workers}")
     if cfg.data.n_points != cfg.model.n_points:
@@ -137,9 +140,10 @@ class Trainer:
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
                                      augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
-                                     mirror=d.mirror)
+                                     mirror=d.mirror, target_draw=cfg.loss.pc2_target == "independent")
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
-                                   fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only)
+                                   fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only,
+                                   target_draw=cfg.loss.pc2_target == "independent")
         self.steps = self._total_steps()
         # checks batch size against the pairs and the processes now rather than at the first step
         StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)
@@ -148,6 +152,7 @@ class Trainer:
                                           self.device, sync_bn=cfg.sync_bn)
         self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
+        self.average = WeightAverage(self.model, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg))
         self.step = 0
         self.best_val: float | None = None
@@ -184,10 +189,22 @@ class Trainer:
                                            prefetch_factor=4 if workers > 0 else None,
                                            generator=torch.Generator().manual_seed(cfg.seed))
 
+    @property
+    def inference_model(self) -> torch.nn.Module:
+        """The net validation and checkpoints' ``model`` entry hold: the weight average when it is on."""
+        return self.average.module if self.average is not None else self.model
+
     def _payload(self) -> dict:
-        return {"kind": "flow", "model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "scheduler": self.scheduler.state_dict(), "step": self.step, "best_val": self.best_val,
-                "rng": checkpoints.rng_state(), "config": asdict(self.cfg)}
+        """``model`` holds the weights every reader of a checkpoint uses (the average when ``optim.ema_decay``
+        is on); the trained weights, which resuming needs, are then under ``trained_model`` with the
+        average's own state under ``average``."""
+        out = {"kind": "flow", "model": self.inference_model.state_dict(), "optimizer": self.optimizer.state_dict(),
+               "scheduler": self.scheduler.state_dict(), "step": self.step, "best_val": self.best_val,
+               "rng": checkpoints.rng_state(), "config": asdict(self.cfg)}
+        if self.average is not None:
+            out["trained_model"] = self.model.state_dict()
+            out["average_updates"] = self.average.updates
+        return out
 
     def _save(self, name: str = "latest.pt") -> None:
         if self.dist.is_main:
@@ -201,7 +218,11 @@ class Trainer:
             if changed:
                 raise InputError(path, f"written by a run with other settings ({'; '.join(changed)}); "
                                        "resume with the same settings or use a new run_dir")
-            self.model.load_state_dict(ckpt["model"])
+            if self.average is not None:
+                self.model.load_state_dict(ckpt["trained_model"])
+                self.average.load_state_dict({"weights": ckpt["model"], "updates": ckpt["average_updates"]})
+            else:
+                self.model.load_state_dict(ckpt["model"])
             self.optimizer.load_state_dict(ckpt["optimizer"])
             self.scheduler.load_state_dict(ckpt["scheduler"])
             self.step = int(ckpt["step"])
@@ -264,6 +285,8 @@ class Trainer:
         self._stop_if_not_finite("gradient", grad_norm, f"norm {grad_norm}")
         self.optimizer.step()
         self.scheduler.step()
+        if self.average is not None:
+            self.average.update(self.model)
         self._sync()
         t4 = time.perf_counter()
         return {"loss": float(total.detach()), **terms, "grad_norm": grad_norm,
@@ -277,7 +300,8 @@ class Trainer:
 
         if not self.val_idx:
             return {}
-        model, was_training = self.model, self.model.training
+        model = self.inference_model
+        was_training = model.training
         model.eval()
         bs = self.cfg.optim.batch_size
         starts = list(range(0, len(self.val_idx), bs))[self.dist.rank::self.dist.world_size]

@@ -15,6 +15,7 @@ from torch import Tensor
 from training.data import FlowBatch
 from training.losses.total import LevelInputs
 from training.model.contract import FlowNet, FlowOutput
+from training.pointops import farthest_point_sample
 
 
 def gather(x: Tensor, idx: Tensor) -> Tensor:
@@ -32,15 +33,31 @@ def forward_two_passes(net: FlowNet, batch: FlowBatch) -> tuple[FlowOutput, Flow
     return out_o, out_d
 
 
+def independent_levels(pc2_target: Tensor, sizes: list[int]) -> list[Tensor]:
+    """``pc2_target`` (B, N, 3) farthest-point sampled to each of ``sizes`` in turn (finest first, each
+    level from the one before, as the net samples its own pc2)."""
+    out, xyz = [], pc2_target
+    for n in sizes:
+        xyz = gather(xyz, farthest_point_sample(xyz, n))
+        out.append(xyz)
+    return out
+
+
 def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_target: str = "level"
                  ) -> list[LevelInputs]:
     """Per pyramid level (finest first): the level's points and flows the losses need; the pc2 points are
-    the level's own (``pc2_target="level"``, the paper) or the finest level's (``"finest"``,
-    :class:`training.config.LossWeights`)."""
+    the level's own (``pc2_target="level"``, the paper), the finest level's (``"finest"``) or a second,
+    independent draw sampled to the level's size (``"independent"``; :class:`training.config.LossWeights`)."""
+    if pc2_target == "independent":
+        if batch.pc2_target is None:
+            raise ValueError("loss.pc2_target 'independent' needs batches with pc2_target "
+                             "(PairDataset(target_draw=True))")
+        targets = independent_levels(batch.pc2_target, [int(i.shape[1]) for i in out_o.indices2])
     levels = []
     for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
         idx1, idx2 = out_o.indices[l], out_o.indices2[0 if pc2_target == "finest" else l]
-        levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=gather(batch.pc2, idx2), flow_o=f_o.float(),
+        pc2 = targets[l] if pc2_target == "independent" else gather(batch.pc2, idx2)
+        levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=pc2, flow_o=f_o.float(),
                                   flow_d=f_d.float(), static_flow=gather(batch.static_flow, idx1), K=batch.K,
                                   depth2=batch.depth2))
     return levels

@@ -1,5 +1,5 @@
-"""The per-level loss inputs of the two passes: each level's own pc2 points (the paper) or the finest level's
-(``LossWeights.pc2_target="finest"``)."""
+"""The per-level loss inputs of the two passes: each level's own pc2 points (the paper), the finest level's
+(``LossWeights.pc2_target="finest"``) or an independent draw (``"independent"``)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from training.config import LossWeights
 from training.data import FlowBatch
 from training.model.contract import FlowOutput
 from training.two_pass import level_inputs
+from _trainer_fixtures import tiny_cache  # noqa: F401
 
 
 def _batch_and_outputs(B: int = 2, N: int = 64) -> tuple[FlowBatch, FlowOutput, FlowOutput]:
@@ -38,6 +39,44 @@ def test_pc2_target_level_and_finest():
         assert torch.equal(b.pc2, paper[0].pc2)  # every level against the finest level's pc2 points
         assert torch.equal(a.pc1, b.pc1) and torch.equal(a.flow_o, b.flow_o)  # frame t untouched
     assert paper[3].pc2.shape[1] == 4 and finest[3].pc2.shape[1] == 32
+
+
+def test_pc2_target_independent_uses_the_second_draw_at_every_level_size():
+    batch, out_o, out_d = _batch_and_outputs()
+    with pytest.raises(ValueError, match="pc2_target"):
+        level_inputs(batch, out_o, out_d, "independent")  # the batch has no second draw
+    g = torch.Generator().manual_seed(1)
+    target = torch.randn(2, 64, 3, generator=g) + 100.0  # far from pc2: any point of it can only come from here
+    batch.pc2_target = target
+    levels = level_inputs(batch, out_o, out_d, "independent")
+    paper = level_inputs(batch, out_o, out_d)
+    for l, (a, b) in enumerate(zip(levels, paper)):
+        assert a.pc2.shape == b.pc2.shape  # the level's size
+        assert (a.pc2 > 50).all()  # taken from the second draw
+        if l:  # each level is a subset of the one before (nested, as the net samples)
+            prev = levels[l - 1].pc2
+            assert all((a.pc2[k][:, None] == prev[k][None]).all(-1).any(-1).all() for k in range(2))
+        assert torch.equal(a.pc1, b.pc1) and torch.equal(a.flow_o, b.flow_o)
+
+
+def test_independent_draw_avoids_the_input_points(tiny_cache):  # noqa: F811
+    """The second draw of frame t+1 shares no point with the net's pc2 while the cloud has enough points;
+    off, nothing is drawn (the same sample as before)."""
+    import numpy as np
+
+    from pipeline.cache import CacheReader
+    from training.data import PairDataset
+
+    r = CacheReader(tiny_cache)
+    n_cloud = len(r[3].pc2)
+    n = n_cloud // 3
+    plain = PairDataset(r, [3], n, seed=0)[0]
+    drawn = PairDataset(r, [3], n, seed=0, target_draw=True)[0]
+    assert all(np.array_equal(plain[k], drawn[k]) for k in plain) and "pc2_target" not in plain
+    shared = (drawn["pc2_target"][:, None] == drawn["pc2"][None]).all(-1).any(-1)
+    assert drawn["pc2_target"].shape == drawn["pc2"].shape and not shared.any()
+    on_cloud = (drawn["pc2_target"][:, None] == r[3].pc2[None]).all(-1).any(-1)
+    assert on_cloud.all()  # every target point is a frame-(t+1) point
 
 
 def test_pc2_target_is_checked():
