@@ -127,6 +127,12 @@ class LossWeights:
         distance to other samples of the same surfaces, so moving points onto the input's pc2 points — its
         sampling pattern, which a LiDAR's rings tie to the sensor — no longer lowers the loss, only landing
         on the surfaces does (docs/learned-flow.md, third round).
+    view_mask: the Chamfer term leaves out the frame-t points whose camera-motion target (p + sf_s) falls
+        outside frame t+1's view (image bounds, in front of the camera, nearer than stage one's 35 m far
+        limit) and the frame-(t+1) points that were outside frame t's view. They have no counterpart in the
+        other cloud, so the Chamfer term can only pull them onto wrong points. Needs no labels, only the
+        pose stage one used. Meant for caches built with ``--filters.occlusion false``, whose clouds keep
+        such points as LiDAR test clouds do (docs/learned-flow.md, third round). False = the paper.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -144,6 +150,7 @@ class LossWeights:
     depth_norm: str = "l1"
     knn_backend: KnnBackend = "auto"
     pc2_target: Pc2Target = "level"
+    view_mask: bool = False
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]

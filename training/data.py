@@ -17,6 +17,7 @@ from torch import Tensor
 
 from core import geometry
 from core.errors import ConfigError, InputError
+from pipeline.filters import FAR_LIMIT_M
 from training.augment import augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
@@ -32,6 +33,8 @@ class FlowBatch:
     gt_flow: (B, N, 3) or None; moving: (B, N) bool or None; index: (B,) pair indices in the cache;
     pc2_target: (B, N, 3) or None, a second draw of frame t+1's points for the loss (``loss.pc2_target
         independent``), camera-(t+1) frame, metres.
+    view1, view2: (B, N) bool or None: pc1 points whose camera-motion target stays in frame t+1's view, pc2
+        points that were in frame t's view (``loss.view_mask``, :func:`in_view`).
     """
 
     pc1: Tensor
@@ -45,6 +48,8 @@ class FlowBatch:
     gt_flow: Tensor | None = None
     moving: Tensor | None = None
     pc2_target: Tensor | None = None
+    view1: Tensor | None = None
+    view2: Tensor | None = None
 
     def __post_init__(self) -> None:
         B, N, _ = self.pc1.shape
@@ -56,6 +61,10 @@ class FlowBatch:
             expect["moving"] = (B, N)
         if self.pc2_target is not None:
             expect["pc2_target"] = (B, None, 3)
+        if self.view1 is not None:
+            expect["view1"] = (B, N)
+        if self.view2 is not None:
+            expect["view2"] = (B, self.pc2.shape[1])
         for name, shape in expect.items():
             got = tuple(getattr(self, name).shape)
             if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
@@ -73,6 +82,19 @@ def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
         return rng.choice(n_have, size=n_want, replace=False)
     extra = rng.choice(n_have, size=n_want - n_have, replace=True)
     return rng.permutation(np.concatenate([np.arange(n_have), extra]))
+
+
+def in_view(points: np.ndarray, K: np.ndarray, size: tuple[int, int], far: float = FAR_LIMIT_M) -> np.ndarray:
+    """(N,) bool: ``points`` (N, 3, a camera's frame, metres) in front of that camera, nearer than ``far``
+    along its axis (stage one's far limit) and projecting (K, pixels) inside an image of ``size`` (H, W)."""
+    p = np.asarray(points, np.float64)
+    K = np.asarray(K, np.float64)
+    z = p[:, 2]
+    zs = np.where(z > 1e-6, z, 1.0)
+    u = K[0, 0] * p[:, 0] / zs + K[0, 1] * p[:, 1] / zs + K[0, 2]
+    v = K[1, 1] * p[:, 1] / zs + K[1, 2]
+    H, W = size
+    return (z > 1e-6) & (z < far) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
 
 
 def independent_draw(rng: np.random.Generator, n_have: int, taken: np.ndarray, n_want: int) -> np.ndarray:
@@ -111,7 +133,7 @@ class PairDataset(torch.utils.data.Dataset):
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
                  depth2_kept_only: bool = False, augment: dict | None = None,
                  ego_speed_scale: tuple[float, float] = (1.0, 1.0), mirror: float = 0.0,
-                 target_draw: bool = False) -> None:
+                 target_draw: bool = False, view_masks: bool = False) -> None:
         self.reader = reader
         self.indices = list(indices)
         self.n_points = n_points
@@ -124,6 +146,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
         self.mirror = float(mirror)
         self.target_draw = target_draw  # also draw ``pc2_target`` (loss.pc2_target independent)
+        self.view_masks = view_masks  # also give ``view1`` / ``view2`` (loss.view_mask)
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -148,6 +171,7 @@ class PairDataset(torch.utils.data.Dataset):
         pc1 = s.pc1[c1].astype(np.float32)
         sf = s.static_flow[c1].astype(np.float32)
         gt = None if s.gt_flow is None else s.gt_flow[c1].astype(np.float32)
+        A = np.eye(4)  # frame t's camera as the augmentations leave it
         if self.ego_speed_scale != (1.0, 1.0):  # drawn only when on: the default draws stay as they were
             A = speed_scaled_view(s.T, draw_speed_scale(rng, *self.ego_speed_scale))
             moved = geometry.transform_points(A, pc1.astype(np.float64)).astype(np.float32)
@@ -173,6 +197,11 @@ class PairDataset(torch.utils.data.Dataset):
             out["gt_flow"] = gt
         if s.moving is not None:
             out["moving"] = np.asarray(s.moving)[c1].astype(bool)
+        if self.view_masks:
+            size = depth2.shape
+            out["view1"] = in_view(pc1 + sf, s.K, size)
+            back = A @ np.linalg.inv(np.asarray(s.T, np.float64))  # frame t+1 -> (augmented) frame t
+            out["view2"] = in_view(geometry.transform_points(back, out["pc2"].astype(np.float64)), s.K, size)
         if self.target_draw:  # drawn only when on
             out["pc2_target"] = s.pc2[independent_draw(rng, len(s.pc2), c2, self.n_points)].astype(np.float32)
         if self.mirror > 0 and rng.random() < self.mirror:  # drawn only when on
@@ -211,7 +240,7 @@ def collate(samples: list) -> FlowBatch | LoadFailure:
     return FlowBatch(pc1=stack("pc1"), pc2=stack("pc2"), feat1=stack("feat1"), feat2=stack("feat2"),
                      static_flow=stack("static_flow"), K=stack("K"), depth2=stack("depth2"),
                      index=stack("index"), gt_flow=stack("gt_flow"), moving=stack("moving"),
-                     pc2_target=stack("pc2_target"))
+                     pc2_target=stack("pc2_target"), view1=stack("view1"), view2=stack("view2"))
 
 
 def pairs_with_gt_flow(reader) -> set[int]:

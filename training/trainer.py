@@ -140,10 +140,11 @@ class Trainer:
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
                                      augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
-                                     mirror=d.mirror, target_draw=cfg.loss.pc2_target == "independent")
+                                     mirror=d.mirror, target_draw=cfg.loss.pc2_target == "independent",
+                                     view_masks=cfg.loss.view_mask)
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only,
-                                   target_draw=cfg.loss.pc2_target == "independent")
+                                   target_draw=cfg.loss.pc2_target == "independent", view_masks=cfg.loss.view_mask)
         self.steps = self._total_steps()
         # checks batch size against the pairs and the processes now rather than at the first step
         StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)
@@ -269,7 +270,7 @@ class Trainer:
             out_o, out_d = forward_two_passes(self.net, batch)
         self._sync()
         t1 = time.perf_counter()
-        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d, self.cfg.loss.pc2_target), self.cfg.loss)
+        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d, self.cfg.loss.pc2_target, self.cfg.loss.view_mask), self.cfg.loss)
         t2 = time.perf_counter()
         bad = [k for k, v in terms.items() if not math.isfinite(v)]
         self._stop_if_not_finite("loss", float(total.detach()), "terms " + ", ".join(bad) if bad else "total")

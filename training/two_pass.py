@@ -43,11 +43,15 @@ def independent_levels(pc2_target: Tensor, sizes: list[int]) -> list[Tensor]:
     return out
 
 
-def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_target: str = "level"
-                 ) -> list[LevelInputs]:
+def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_target: str = "level",
+                 view_mask: bool = False) -> list[LevelInputs]:
     """Per pyramid level (finest first): the level's points and flows the losses need; the pc2 points are
     the level's own (``pc2_target="level"``, the paper), the finest level's (``"finest"``) or a second,
-    independent draw sampled to the level's size (``"independent"``; :class:`training.config.LossWeights`)."""
+    independent draw sampled to the level's size (``"independent"``; :class:`training.config.LossWeights`).
+    ``view_mask``: each level carries the batch's ``view1`` / ``view2`` at its points (the pc2 side only
+    with the input's own pc2 points)."""
+    if view_mask and (batch.view1 is None or batch.view2 is None):
+        raise ValueError("loss.view_mask needs batches with view1 and view2 (PairDataset(view_masks=True))")
     if pc2_target == "independent":
         if batch.pc2_target is None:
             raise ValueError("loss.pc2_target 'independent' needs batches with pc2_target "
@@ -59,7 +63,10 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_tar
         pc2 = targets[l] if pc2_target == "independent" else gather(batch.pc2, idx2)
         levels.append(LevelInputs(pc1=gather(batch.pc1, idx1), pc2=pc2, flow_o=f_o.float(),
                                   flow_d=f_d.float(), static_flow=gather(batch.static_flow, idx1), K=batch.K,
-                                  depth2=batch.depth2))
+                                  depth2=batch.depth2,
+                                  view1=gather(batch.view1, idx1) if view_mask else None,
+                                  view2=gather(batch.view2, idx2) if view_mask and pc2_target != "independent"
+                                  else None))
     return levels
 
 

@@ -82,3 +82,43 @@ def test_independent_draw_avoids_the_input_points(tiny_cache):  # noqa: F811
 def test_pc2_target_is_checked():
     with pytest.raises(ConfigError, match="pc2_target"):
         LossWeights(pc2_target="dense")
+
+
+def test_view_mask_leaves_points_without_counterpart_out_of_the_chamfer_means():
+    """A frame-t point whose target left the view pulls the plain Chamfer term; masked, the term is the
+    one of the points that have counterparts, and every point is still a candidate neighbour."""
+    from training.losses.chamfer import chamfer
+
+    pc2 = torch.tensor([[[0.0, 0.0, 5.0], [1.0, 0.0, 5.0]]])
+    warped = torch.tensor([[[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [9.0, 0.0, 5.0]]])  # the last one has left the view
+    plain = chamfer(warped, pc2, "torch")
+    masked = chamfer(warped, pc2, "torch", torch.tensor([[True, True, False]]), torch.tensor([[True, True]]))
+    assert float(plain) == pytest.approx(64.0 / 3)  # (0 + 0 + 8²) / 3, the other direction 0
+    assert float(masked) == pytest.approx(0.0)
+    assert float(chamfer(warped, pc2, "torch", torch.zeros(1, 3, dtype=torch.bool))) == pytest.approx(64.0 / 3)
+
+
+def test_in_view_and_the_batch_masks(tiny_cache):  # noqa: F811
+    """``in_view``: in front, nearer than the far limit, inside the image; the dataset's view1 is in_view of
+    each point's camera-motion target, and level_inputs hands the masks to every level."""
+    import numpy as np
+
+    from pipeline.cache import CacheReader
+    from training.data import PairDataset, collate, in_view
+
+    K = np.array([[100.0, 0, 50], [0, 100.0, 20], [0, 0, 1]])
+    pts = np.array([[0, 0, 10.0], [0, 0, -1.0], [0, 0, 40.0], [6.0, 0, 10.0], [0, 2.0, 10.0]])
+    assert in_view(pts, K, (41, 101)).tolist() == [True, False, False, False, True]
+    r = CacheReader(tiny_cache)
+    d = PairDataset(r, [3], 128, seed=0, view_masks=True)[0]
+    s = r[3]
+    assert np.array_equal(d["view1"], in_view(d["pc1"] + d["static_flow"], s.K, s.depth2.shape))
+    assert d["view1"].dtype == bool and d["view2"].shape == (128,)
+    batch = collate([d, PairDataset(r, [5], 128, seed=0, view_masks=True)[0]])
+    _, out_o, out_d = _batch_and_outputs(B=2, N=128)
+    levels = level_inputs(batch, out_o, out_d, view_mask=True)
+    for l, lv in enumerate(levels):
+        assert torch.equal(lv.view1, torch.gather(batch.view1, 1, out_o.indices[l]))
+        assert torch.equal(lv.view2, torch.gather(batch.view2, 1, out_o.indices2[l]))
+    with pytest.raises(ValueError, match="view_mask"):
+        level_inputs(_batch_and_outputs(B=2, N=128)[0], out_o, out_d, view_mask=True)

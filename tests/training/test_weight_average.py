@@ -65,3 +65,17 @@ def test_checkpoint_model_is_the_average_and_resume_is_exact(tiny_cache, tmp_pat
 def test_ema_decay_is_checked(tiny_cache, tmp_path):  # noqa: F811
     with pytest.raises(ConfigError, match="ema_decay"):
         Trainer(tiny_config(tiny_cache, tmp_path / "bad", optim={"ema_decay": 1.5}))
+
+
+@pytest.mark.parametrize("loss", [{"view_mask": True}, {"pc2_target": "independent"}])
+def test_loss_switches_train_and_validate(tiny_cache, tmp_path, loss):  # noqa: F811
+    """The loss switches that need extra batch fields (view masks, a second pc2 draw) train and validate
+    end to end, with finite losses."""
+    import math
+
+    trainer = Trainer(tiny_config(tiny_cache, tmp_path / "run", steps=2, val_every=2, loss=loss,
+                                  data={"mirror": 0.5, "ego_speed_scale": (0.5, 2.0)}))
+    last = trainer.fit()
+    trainer.close()
+    chamfer = [v for k, v in last.items() if "chamfer" in k]
+    assert math.isfinite(last["loss"]) and math.isfinite(last["val_l0"]) and chamfer and min(chamfer) >= 0

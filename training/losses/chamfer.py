@@ -20,12 +20,25 @@ def nearest_sq_dist(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") ->
     return ((group(ref, idx)[:, :, 0] - query) ** 2).sum(-1)
 
 
-def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto") -> Tensor:
+def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: Tensor | None = None,
+            mask2: Tensor | None = None) -> Tensor:
     """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
 
     ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
     Each direction is averaged over its own points (the paper writes sums), then over the batch.
+    ``mask1`` (B, N) / ``mask2`` (B, M), bool: only these points enter their direction's mean (every point
+    stays a candidate neighbour); ``loss.view_mask`` passes the points that have a counterpart in view.
     """
     check_points("chamfer", "p_warped", p_warped)
     check_points("chamfer", "pc2", pc2, p_warped.shape[0])
-    return nearest_sq_dist(p_warped, pc2, backend).mean() + nearest_sq_dist(pc2, p_warped, backend).mean()
+    return (masked_mean(nearest_sq_dist(p_warped, pc2, backend), mask1)
+            + masked_mean(nearest_sq_dist(pc2, p_warped, backend), mask2))
+
+
+def masked_mean(values: Tensor, mask: Tensor | None) -> Tensor:
+    """Mean of ``values`` (B, N) over the ``mask`` (B, N) entries (all when None or when none is set)."""
+    if mask is None:
+        return values.mean()
+    weight = mask.to(values.dtype)
+    total = weight.sum()
+    return (values * weight).sum() / total if bool(total > 0) else values.mean()

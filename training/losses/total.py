@@ -33,6 +33,7 @@ class LevelInputs:
     static_flow (B, n, 3): sf_s = (R p1 + t) − p1 at pc1 (the one fed to the second pass).
     K (B, 3, 3): intrinsics at the depth map's resolution.
     depth2 (B, H, W): D_{t+1}, metres, ≤ 0 where unknown.
+    view1 (B, n) / view2 (B, m), bool or None: the points the Chamfer term averages over (``view_mask``).
     """
 
     pc1: Tensor
@@ -42,6 +43,8 @@ class LevelInputs:
     static_flow: Tensor
     K: Tensor
     depth2: Tensor
+    view1: Tensor | None = None
+    view2: Tensor | None = None
 
 
 def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
@@ -68,7 +71,7 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     if w.use_ds:
         out["ds"] = dynamic_static(level.flow_o, level.static_flow, level.flow_d)
     if w.use_chamfer:
-        out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend)
+        out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend)
     return out
