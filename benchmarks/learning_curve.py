@@ -76,13 +76,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=0)
     p.add_argument("--variants", default="as-trained",
                    help="comma list of test-time settings to score each snapshot under: 'as-trained', or '+'-joined "
-                        "switches 'ego' (model.ego_head on), 'input' / 'running' (model.eval_norm_stats)")
+                        "switches 'ego' (model.ego_head on), 'input' / 'running' (model.eval_norm_stats), "
+                        "'prune' (two-pass view pruning, evaluation/view_prune.py)")
     p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
     import torch
 
     from evaluation.methods import NetMethod, make_baseline
+    from evaluation.view_prune import view_pruned
     from evaluation.readers import load_split
     from training.selection import score_checkpoint
     from training.trainer import Trainer
@@ -121,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
                 net.net.set_eval_norm_stats("input")
             if "running" in variant.split("+"):
                 net.net.set_eval_norm_stats("running")
+            if "prune" in variant.split("+"):
+                net = view_pruned(net)
+                net.name = variant
             nets.append(net)
         scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.output_points[0])
         row = {"step": m}

@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--scenes", default="all",
                    help="all | first:N | last:N | kitti_t (last 50 of the 150 KITTI_o scenes), over the sorted "
                         "scene names after --mapping")
+    r.add_argument("--view-prune", action="store_true",
+                   help="also score each checkpoint run twice, the second time without the frame-1 points whose "
+                        "rigid motion leaves pc2's view, as its own row '<net> + view pruning' (evaluation/view_prune.py)")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise)")
@@ -165,15 +168,17 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
-    if args.refine and not nets:
-        raise ConfigError("--refine refines a net's flow: give at least one --checkpoint")
+    if (args.refine or args.view_prune) and not nets:
+        raise ConfigError("--refine and --view-prune wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
     methods = [*nets, *named.values()]
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
-    if args.refine:  # after the nets got distinct names; one refined row right after each net's own row
-        methods = [x for m in methods for x in ([m, make_method("refine", m)] if any(m is n for n in nets) else [m])]
+    wrappers = [w for w, on in (("view-prune", args.view_prune), ("refine", args.refine)) if on]
+    if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
+        methods = [x for m in methods
+                   for x in ([m, *(make_method(w, m) for w in wrappers)] if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
         if hasattr(getattr(m, "config", None), "iterations"):
             m.config.device = args.device

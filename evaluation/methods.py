@@ -166,6 +166,12 @@ def _nsfp() -> FlowMethod:
     return NSFPMethod()  # per-scene MLP prior fitted with a truncated Chamfer loss (evaluation/optimise)
 
 
+def _view_pruned(method: FlowMethod) -> FlowMethod:
+    from evaluation.view_prune import view_pruned
+
+    return view_pruned(method)  # label-free two-pass inference (evaluation/view_prune.py)
+
+
 _METHODS: dict[str, MethodEntry] = {
     "zero": MethodEntry(_zero),
     "static": MethodEntry(StaticPoseMethod, note="splits with poses"),
@@ -174,6 +180,8 @@ _METHODS: dict[str, MethodEntry] = {
     "fgr": MethodEntry(_fgr),
     "nsfp": MethodEntry(_nsfp),
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
+    "view-prune": MethodEntry(lambda m: _view_pruned(m), wraps=True,
+                              note="two passes, the second without the points leaving pc2's view"),
 }
 
 

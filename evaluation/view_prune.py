@@ -1,0 +1,102 @@
+"""Two-pass inference that sets aside the frame-t points leaving the sensor's view (label-free).
+
+A LiDAR test cloud keeps every return of frame t, including the points that leave the camera's field of
+view or the 35 m range by frame t+1 (8–17 % of the points on the synthetic worlds' LiDAR splits) and so
+have no counterpart in pc2. Stage one's training clouds never hold such points (its occlusion filter
+drops them), and a net that never met them drags its flow, and its rigid ego-motion, towards wrong
+matches for them (docs/learned-flow.md, third round). This wrapper, usable around any method:
+
+1. runs the method on the whole clouds and fits one rigid motion (R, t) to its flow (IRLS with Cauchy
+   weights, :func:`training.model.ego_motion.rigid_plus_residual`);
+2. marks the frame-t points whose rigid target ``R p + t`` falls outside pc2's own extent — its azimuth
+   range narrowed by ``margin_deg`` on each side, its elevation range and its farthest depth, all read
+   from pc2 itself, so no label, pose or calibration is used;
+3. runs the method again on the remaining points (topped up by repeats to the input size) and pc2; the
+   marked points take the rigid flow.
+
+Clouds: camera frames of frames 1 and 2 (x right, y down, z forward), metres. The row it adds is named
+``"<method> + view pruning"``; the method's own row is unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class ViewPruneConfig:
+    """margin_deg: the azimuth band (degrees) at each side of pc2's extent that counts as outside.
+    min_share: below this share of points in view the first pass's flow is returned unchanged.
+    sigma, iterations, mad_factor: the rigid fit's Cauchy scale (metres), rounds and robust-scale factor
+    (:func:`training.model.ego_motion.rigid_plus_residual`, the ego head's defaults)."""
+
+    margin_deg: float = 0.5
+    min_share: float = 0.25
+    sigma: float = 0.25
+    iterations: int = 4
+    mad_factor: float = 3.0
+
+
+def _angles(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth ``atan2(x, z)`` and elevation ``atan2(−y, √(x² + z²))`` in degrees (camera frame)."""
+    p = np.asarray(points, np.float64)
+    return np.degrees(np.arctan2(p[:, 0], p[:, 2])), np.degrees(np.arctan2(-p[:, 1], np.hypot(p[:, 0], p[:, 2])))
+
+
+def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.ndarray:
+    """(N,) bool: ``points`` (camera-2 frame) within pc2's azimuth range (less ``margin_deg`` each side),
+    its elevation range and nearer than its farthest point along z."""
+    az2, el2 = _angles(pc2)
+    az, el = _angles(points)
+    return ((az > az2.min() + margin_deg) & (az < az2.max() - margin_deg) & (el >= el2.min()) & (el <= el2.max())
+            & (points[:, 2] > 0) & (points[:, 2] <= pc2[:, 2].max()))
+
+
+def rigid_fit(pc1: np.ndarray, flow: np.ndarray, cfg: ViewPruneConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) fitted robustly to ``flow`` at ``pc1`` (camera 1 → camera 2, metres)."""
+    import torch
+
+    from training.model.ego_motion import rigid_plus_residual
+
+    def t(x):
+        return torch.tensor(np.asarray(x, np.float64))[None]
+
+    _, R, tr, _ = rigid_plus_residual(t(pc1), t(flow), cfg.sigma, cfg.iterations, cfg.mad_factor)
+    return R[0].numpy(), tr[0].numpy()
+
+
+class ViewPruned:
+    """``inner`` (any flow method) run twice, the second time without the points leaving pc2's view."""
+
+    def __init__(self, inner, config: ViewPruneConfig | None = None) -> None:
+        self.inner = inner
+        self.config = config or ViewPruneConfig()
+        self.name = f"{inner.name} + view pruning"
+
+    def __getattr__(self, key):  # n_points, n_score, uses_colour, … of the wrapped method
+        if key == "inner":
+            raise AttributeError(key)
+        return getattr(self.inner, key)
+
+    def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
+        cfg = self.config
+        first = np.asarray(self.inner(pc1, pc2, color1, color2), np.float32)
+        R, t = rigid_fit(pc1, first, cfg)
+        target = np.asarray(pc1, np.float64) @ R.T + t
+        keep = np.flatnonzero(inside_extent(target, np.asarray(pc2, np.float64), cfg.margin_deg))
+        if len(keep) == len(pc1) or len(keep) < max(64, cfg.min_share * len(pc1)):
+            return first
+        rng = np.random.default_rng(0)
+        rows = np.concatenate([keep, rng.choice(keep, len(pc1) - len(keep))])  # the input size, as trained
+        c1 = None if color1 is None else color1[rows]
+        second = np.asarray(self.inner(pc1[rows], pc2, c1, color2), np.float32)
+        out = (target - pc1).astype(np.float32)
+        out[keep] = second[: len(keep)]
+        return out
+
+
+def view_pruned(method, config: ViewPruneConfig | None = None) -> ViewPruned:
+    """``method`` with two-pass view pruning, named ``"<method name> + view pruning"`` (its own row)."""
+    return ViewPruned(method, config)
