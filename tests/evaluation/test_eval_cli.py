@@ -278,4 +278,4 @@ def test_nsfp_baseline_and_refine_rows(world: Path, checkpoint: Path, tmp_path: 
     # --refine needs a net to refine
     assert main(["run", "--split", split, "--baselines", "zero", "--refine", "--out", str(tmp_path / "x"),
                  "--no-progress"]) == 2
-    assert "--refine refines a net's flow" in capsys.readouterr().err
+    assert "--refine and --view-prune wrap a net" in capsys.readouterr().err
