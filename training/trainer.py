@@ -197,8 +197,8 @@ class Trainer:
 
     def _payload(self) -> dict:
         """``model`` holds the weights every reader of a checkpoint uses (the average when ``optim.ema_decay``
-        is on); the trained weights, which resuming needs, are then under ``trained_model`` with the
-        average's own state under ``average``."""
+        is on); the trained weights, which resuming needs, are then under ``trained_model`` and the
+        average's update count under ``average_updates``."""
         out = {"kind": "flow", "model": self.inference_model.state_dict(), "optimizer": self.optimizer.state_dict(),
                "scheduler": self.scheduler.state_dict(), "step": self.step, "best_val": self.best_val,
                "rng": checkpoints.rng_state(), "config": asdict(self.cfg)}

@@ -207,3 +207,9 @@ def test_mirror_reflects_points_depth_map_and_intrinsics_together(tiny_cache):  
     assert np.array_equal(mirrored["depth2"][:, ::-1], plain["depth2"])
     off = PairDataset(r, [3, 9], 256, seed=0, mirror=0.0)[1]
     assert all(np.array_equal(plain[k], off[k]) for k in plain)
+
+
+def test_mirror_is_checked(tiny_cache, tmp_path):  # noqa: F811
+    cfg = tiny_config(tiny_cache, tmp_path / "bad", data={"mirror": 1.5})
+    with pytest.raises(ConfigError, match="mirror"):
+        Trainer(cfg)
