@@ -87,14 +87,8 @@ def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
 def in_view(points: np.ndarray, K: np.ndarray, size: tuple[int, int], far: float = FAR_LIMIT_M) -> np.ndarray:
     """(N,) bool: ``points`` (N, 3, a camera's frame, metres) in front of that camera, nearer than ``far``
     along its axis (stage one's far limit) and projecting (K, pixels) inside an image of ``size`` (H, W)."""
-    p = np.asarray(points, np.float64)
-    K = np.asarray(K, np.float64)
-    z = p[:, 2]
-    zs = np.where(z > 1e-6, z, 1.0)
-    u = K[0, 0] * p[:, 0] / zs + K[0, 1] * p[:, 1] / zs + K[0, 2]
-    v = K[1, 1] * p[:, 1] / zs + K[1, 2]
-    H, W = size
-    return (z > 1e-6) & (z < far) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    uv, z = geometry.project(np.asarray(points, np.float64), np.asarray(K, np.float64))
+    return (z > 1e-6) & (z < far) & geometry.in_image(uv, *size)
 
 
 def independent_draw(rng: np.random.Generator, n_have: int, taken: np.ndarray, n_want: int) -> np.ndarray:
