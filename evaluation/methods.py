@@ -180,7 +180,7 @@ _METHODS: dict[str, MethodEntry] = {
     "fgr": MethodEntry(_fgr),
     "nsfp": MethodEntry(_nsfp),
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
-    "view-prune": MethodEntry(lambda m: _view_pruned(m), wraps=True,
+    "view-prune": MethodEntry(_view_pruned, wraps=True,
                               note="two passes, the second without the points leaving pc2's view"),
 }
 

@@ -84,6 +84,12 @@ def _choose(rng: np.random.Generator, n_have: int, n_want: int) -> np.ndarray:
     return rng.permutation(np.concatenate([np.arange(n_have), extra]))
 
 
+def loss_draws(loss) -> dict[str, bool]:
+    """The :class:`PairDataset` keywords a loss config (:class:`training.config.LossWeights`) needs: a second
+    pc2 draw for ``pc2_target="independent"``, view masks for ``view_mask``."""
+    return {"target_draw": loss.pc2_target == "independent", "view_masks": loss.view_mask}
+
+
 def in_view(points: np.ndarray, K: np.ndarray, size: tuple[int, int], far: float = FAR_LIMIT_M) -> np.ndarray:
     """(N,) bool: ``points`` (N, 3, a camera's frame, metres) in front of that camera, nearer than ``far``
     along its axis (stage one's far limit) and projecting (K, pixels) inside an image of ``size`` (H, W)."""

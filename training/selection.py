@@ -51,7 +51,8 @@ def validation_sums(model, batches, loss_weights, device) -> "np.ndarray":
     for samples in batches:
         batch = collate(samples).to(device)
         out_o, out_d = forward_two_passes(model, batch)
-        total, terms = multi_level_loss(level_inputs(batch, out_o, out_d, loss_weights.pc2_target, loss_weights.view_mask), loss_weights)
+        levels = level_inputs(batch, out_o, out_d, loss_weights.pc2_target, loss_weights.view_mask)
+        total, terms = multi_level_loss(levels, loss_weights)
         e, n = epe3d(out_o, batch) if batch.gt_flow is not None else (0.0, 0)
         cyc = float(cycle_error(model, batch.pc1, batch.feat1, out_o).sum())
         k = len(samples)
@@ -82,15 +83,14 @@ def score_checkpoint(train_config, checkpoint, device: str = "cpu") -> dict[str,
     """The validation scores of a saved net on the held-out pairs of ``train_config`` (its cache, split and
     loss), exactly as the trainer computes them, without a run folder."""
     from pipeline.cache import CacheReader
-    from training.data import PairDataset, train_val_split
+    from training.data import PairDataset, loss_draws, train_val_split
 
     cfg, d = train_config, train_config.data
     model = load_flow_net(checkpoint, device)
     reader = CacheReader(cfg.cache)
     _, val_idx = train_val_split(reader, d.val_fraction, d.val_pairs_max)
     val_set = PairDataset(reader, val_idx, d.n_points, cfg.seed, d.colour_features, fixed_epoch=-1,
-                          depth2_kept_only=d.depth2_kept_only, target_draw=cfg.loss.pc2_target == "independent",
-                          view_masks=cfg.loss.view_mask)
+                          depth2_kept_only=d.depth2_kept_only, **loss_draws(cfg.loss))
     bs = cfg.optim.batch_size
     batches = ([val_set[p] for p in range(s, min(s + bs, len(val_idx)))] for s in range(0, len(val_idx), bs))
     return scores_from_sums(validation_sums(model, batches, cfg.loss, torch.device(device)))

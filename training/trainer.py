@@ -39,6 +39,7 @@ from training.data import (
     PairDataset,
     StepBatches,
     collate,
+    loss_draws,
     train_val_split,
 )
 from training.losses.total import multi_level_loss
@@ -140,11 +141,10 @@ class Trainer:
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
                                      augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
-                                     mirror=d.mirror, target_draw=cfg.loss.pc2_target == "independent",
-                                     view_masks=cfg.loss.view_mask)
+                                     mirror=d.mirror, **loss_draws(cfg.loss))
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only,
-                                   target_draw=cfg.loss.pc2_target == "independent", view_masks=cfg.loss.view_mask)
+                                   **loss_draws(cfg.loss))
         self.steps = self._total_steps()
         # checks batch size against the pairs and the processes now rather than at the first step
         StepBatches(len(self.train_idx), cfg.optim.batch_size, cfg.seed, 0, 0, self.dist.rank, self.dist.world_size)
