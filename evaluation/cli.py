@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "rigid motion leaves pc2's view, as its own row '<net> + view pruning' (evaluation/view_prune.py)")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
-                        "'<net> + refinement' (evaluation/optimise)")
+                        "'<net> + refinement' (evaluation/optimise); with --view-prune it refines the view-pruned "
+                        "flow: '<net> + view pruning + refinement'")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -97,6 +98,17 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         return tuple(int(t) for t in _csv(text))
     except ValueError:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
+
+
+def _stacked(net, wrappers: list[str]) -> list:
+    """``net`` and one row per wrapper, each wrapping the previous row (``view-prune`` then ``refine``: the
+    refinement starts from the view-pruned flow, named '<net> + view pruning + refinement')."""
+    from evaluation.methods import make_method
+
+    rows = [net]
+    for w in wrappers:
+        rows.append(make_method(w, rows[-1]))
+    return rows
 
 
 def _unique_names(methods: list) -> None:
@@ -177,8 +189,7 @@ def _run(args) -> int:
     _unique_names(methods)
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
-        methods = [x for m in methods
-                   for x in ([m, *(make_method(w, m) for w in wrappers)] if any(m is n for n in nets) else [m])]
+        methods = [x for m in methods for x in (_stacked(m, wrappers) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
         if hasattr(getattr(m, "config", None), "iterations"):
             m.config.device = args.device

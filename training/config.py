@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from core.errors import ConfigError
-from training.choices import ALPHA_ORDERS, DEPTH_VARIANTS, PC2_TARGETS, AlphaOrder, DepthVariant, KnnBackend, Pc2Target
+from training.choices import (ALPHA_ORDERS, DEPTH_VARIANTS, PC2_TARGETS, SCHEDULES, AlphaOrder, DepthVariant, KnnBackend,
+                              LrSchedule, Pc2Target)
 from training.model.contract import FlowNetConfig
 from training.model.halflownet_config import HALFlowConfig, level_points_for  # noqa: F401  (re-exported)
 from training.model.registry import DEFAULT_NET, config_class
@@ -77,6 +78,10 @@ class DataConfig:
 class OptimConfig:
     """Adam with the paper's step decay: lr · decay^(samples // decay_every), floored at lr_min.
 
+    schedule: ``step`` (the paper's step decay above) or ``cosine``: from ``lr`` at step 0 down to
+        ``lr_min`` at the run's last step along half a cosine (``decay`` and ``decay_every_samples`` unused).
+        Its lr depends on the run's length, so a run continued to more steps follows a new curve from
+        where it stands.
     lr: initial learning rate.
     decay: factor applied every ``decay_every_samples`` training samples.
     decay_every_samples: training pairs seen between two decays.
@@ -88,6 +93,7 @@ class OptimConfig:
         :mod:`training.runtime.ema`; 0.99 averages over roughly the last 100 steps).
     """
 
+    schedule: LrSchedule = "step"
     lr: float = 1e-3
     decay: float = 0.7
     decay_every_samples: int = 200_000

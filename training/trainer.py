@@ -31,6 +31,7 @@ import torch
 
 from core.errors import ConfigError, InputError, TrainingDiverged
 from core.options import flatten
+from training.choices import SCHEDULES
 from training.config import TrainConfig
 from training.data import (
     EpochAware,
@@ -59,15 +60,21 @@ RESUMABLE_CHANGES = frozenset({
 })
 
 
-def lr_factor(step: int, cfg: TrainConfig) -> float:
+def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None) -> float:
     """Multiplier of the base lr after ``step`` optimiser steps.
 
-    ``decay ** (step · batch_size // decay_every_samples)`` (the paper: 0.7 per 200k samples), floored so
-    that the lr never falls below ``lr_min`` (a base lr already below ``lr_min`` is left as it is).
+    ``optim.schedule = "step"``: ``decay ** (step · batch_size // decay_every_samples)`` (the paper: 0.7 per
+    200k samples), floored so that the lr never falls below ``lr_min`` (a base lr already below ``lr_min``
+    is left as it is). ``"cosine"``: ``m + (1 − m) · ½ (1 + cos(π · step / total_steps))`` with
+    ``m = lr_min / lr`` (1 at step 0, m at ``total_steps`` and after; ``total_steps`` defaults to ``steps``).
     """
     o = cfg.optim
+    floor = min(1.0, o.lr_min / o.lr)
+    if o.schedule == "cosine":
+        total = max(1, total_steps or cfg.steps)
+        return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * min(step, total) / total))
     samples = step * o.batch_size
-    return max(o.decay ** (samples // o.decay_every_samples), min(1.0, o.lr_min / o.lr))
+    return max(o.decay ** (samples // o.decay_every_samples), floor)
 
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
@@ -107,6 +114,8 @@ def check_config(cfg: TrainConfig) -> None:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
     if cfg.optim.batch_size < 1 or cfg.optim.decay_every_samples < 1 or not cfg.optim.lr > 0:
         raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1 and lr > 0, got {cfg.optim}")
+    if cfg.optim.schedule not in SCHEDULES:  # training.choices
+        raise ConfigError(f"optim.schedule must be one of {SCHEDULES}, got {cfg.optim.schedule!r}")
     if not 0 <= cfg.optim.ema_decay < 1:
         raise ConfigError(f"optim.ema_decay must be 0 (off) or in (0, 1), got {cfg.optim.ema_decay}")
     if cfg.threads < 0 or cfg.data.workers < 0:
@@ -154,7 +163,7 @@ class Trainer:
         self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
         self.average = WeightAverage(self.model, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
-        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg))
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg, self.steps))
         self.step = 0
         self.best_val: float | None = None
         resumed = resume and (self.run_dir / "latest.pt").exists()

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from evaluation.cli import main
-from evaluation.methods import NetMethod
+from evaluation.methods import NetMethod, make_method
 from evaluation.predictions import read_predictions, score_predictions
 from evaluation.protocols import ProtocolConfig, prepare_scene
 from evaluation.readers import load_split
@@ -279,3 +279,17 @@ def test_nsfp_baseline_and_refine_rows(world: Path, checkpoint: Path, tmp_path: 
     assert main(["run", "--split", split, "--baselines", "zero", "--refine", "--out", str(tmp_path / "x"),
                  "--no-progress"]) == 2
     assert "--refine and --view-prune wrap a net" in capsys.readouterr().err
+
+
+def test_wrappers_stack_view_prune_then_refine() -> None:
+    """``--view-prune --refine``: the refinement starts from the view-pruned flow, each its own row."""
+    from evaluation.cli import _stacked
+    from evaluation.optimise import RefinedMethod
+    from evaluation.view_prune import ViewPruned
+
+    net = make_method("zero")
+    rows = _stacked(net, ["view-prune", "refine"])
+    assert [r.name for r in rows] == ["zero", "zero + view pruning", "zero + view pruning + refinement"]
+    assert isinstance(rows[1], ViewPruned) and rows[1].inner is net
+    assert isinstance(rows[2], RefinedMethod) and rows[2].base is rows[1]
+    assert [r.name for r in _stacked(net, ["refine"])] == ["zero", "zero + refinement"]

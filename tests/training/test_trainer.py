@@ -35,6 +35,16 @@ def test_lr_factor_decays_0_7_per_200k_samples_with_floor():
     assert lr_factor(0, _cfg_lr(lr=5e-5, lr_min=1e-4)) == 1.0
 
 
+def test_cosine_schedule_runs_from_lr_to_lr_min_over_the_run():
+    cfg = _cfg_lr(schedule="cosine", lr=1e-3, lr_min=1e-4)
+    cfg.steps = 1000
+    assert lr_factor(0, cfg) == 1.0
+    assert lr_factor(500, cfg) == pytest.approx(0.55)  # halfway: the mean of 1 and the floor 0.1
+    assert lr_factor(1000, cfg) == pytest.approx(0.1) and lr_factor(5000, cfg) == pytest.approx(0.1)
+    assert lr_factor(250, cfg) > lr_factor(500, cfg) > lr_factor(750, cfg)
+    assert lr_factor(1000, cfg, total_steps=2000) == pytest.approx(0.55)  # the trainer's resolved run length
+
+
 def _run(cache, run_dir, **kw) -> tuple[Trainer, dict]:
     trainer = Trainer(tiny_config(cache, run_dir, **kw))
     try:
@@ -201,6 +211,8 @@ def test_config_combinations_are_checked(tiny_cache, tmp_path):  # noqa: F811
         Trainer(tiny_config(tiny_cache, tmp_path, data={"n_points": 100}))
     with pytest.raises(ConfigError, match="only 12 training pairs for a batch of 13"):
         Trainer(tiny_config(tiny_cache, tmp_path, optim={"batch_size": 13}))
+    with pytest.raises(ConfigError, match="optim.schedule must be one of"):
+        Trainer(tiny_config(tiny_cache, tmp_path, optim={"schedule": "linear"}))
 
 
 def test_best_checkpoint_follows_the_label_free_criterion(trained):
