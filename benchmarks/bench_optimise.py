@@ -1,5 +1,5 @@
 """Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline and the test-time
-refinement of a net's flow (evaluation/optimise) — through the real protocol (``run_protocol``: same
+refinement of the view-pruned net's flow (evaluation/optimise, evaluation/view_prune.py) — through the real protocol (``run_protocol``: same
 sampled points for every method, one untimed warm-up call, then the mean over scenes), on CPU and, when
 one is present, on CUDA.
 
@@ -44,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     from evaluation.methods import NetMethod
     from evaluation.optimise import NSFPConfig, NSFPMethod, RefineConfig, RefinedMethod
     from evaluation.protocols import ProtocolConfig, run_protocol
+    from evaluation.view_prune import view_pruned
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -62,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---|---:|---:|---:|")
         for dev in devices:
             net = NetMethod(ckpt, device=dev, name="ours")
-            methods = [net, NSFPMethod(NSFPConfig(device=dev)), RefinedMethod(net, RefineConfig(device=dev))]
+            pruned = view_pruned(net)  # the demo's "+ view pruning + refinement" row refines this flow
+            methods = [net, pruned, NSFPMethod(NSFPConfig(device=dev)), RefinedMethod(pruned, RefineConfig(device=dev))]
             for res, m in zip(run_protocol(split, methods, cfg, progress=False), methods):
                 last = getattr(m, "last", None)
                 its = str(last.iterations) if last is not None else "–"

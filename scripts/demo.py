@@ -1,8 +1,8 @@
 """``make demo``: the whole mission on the embedded default, end to end, on a CPU.
 
 synthetic world -> stage one (zarr cache) -> short scene-flow training -> evaluation of the trained net, of
-the net run twice without the points that leave the view (label-free view pruning), of the net followed by
-label-free test-time refinement, and of zero flow, ICP, FGR and NSFP on the synthetic test split, printing
+the net run twice without the points that leave the view (label-free view pruning), of that flow followed
+by label-free test-time refinement, and of zero flow, ICP, FGR and NSFP on the synthetic test split, printing
 the table; then the net against ICP on the split of a differently configured world it never saw.
 
 ``--depth gt`` (default) runs stage one on the world's ground-truth depth and poses; ``--depth learned``
@@ -124,7 +124,7 @@ def _run(args) -> int:
     checkpoint = str(Path(tcfg.run_dir) / "latest.pt")
     _say("4/5 evaluation on the world's scene-flow test split (same points for every method)")
     split = world / "sceneflow" / "flownet3d"
-    # the net alone, the net run twice without the points leaving the view, the net + label-free test-time
+    # the net alone, the net run twice without the points leaving the view, that + label-free test-time
     # refinement, and every label-free baseline on the same points
     rc = evaluate(["run", "--split", str(split), "--checkpoint", checkpoint, "--baselines", "zero,icp-p2p,fgr,nsfp",
                    "--view-prune", "--refine", "--out", str(out / f"eval_{args.depth}"), "--no-progress", "--save-predictions",
