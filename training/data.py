@@ -97,6 +97,16 @@ def in_view(points: np.ndarray, K: np.ndarray, size: tuple[int, int], far: float
     return (z > 1e-6) & (z < far) & geometry.in_image(uv, *size)
 
 
+def cache_far_limit(reader) -> float:
+    """The far limit (metres along the optical axis) the cache's stage one kept points within: its
+    ``filters.far_max_z`` when its far filter was on, ``inf`` when off; :data:`FAR_LIMIT_M` for a reader
+    without a stage-one manifest."""
+    filters = (getattr(reader, "manifest", None) or {}).get("config", {}).get("filters")
+    if not filters:
+        return FAR_LIMIT_M
+    return float(filters.get("far_max_z", FAR_LIMIT_M)) if filters.get("far", True) else math.inf
+
+
 def independent_draw(rng: np.random.Generator, n_have: int, taken: np.ndarray, n_want: int) -> np.ndarray:
     """``n_want`` indices into ``n_have`` points, avoiding the ``taken`` ones (the net's input) as far as the
     cloud allows: the untaken points first (without replacement), topped up from the whole cloud."""
@@ -147,6 +157,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.mirror = float(mirror)
         self.target_draw = target_draw  # also draw ``pc2_target`` (loss.pc2_target independent)
         self.view_masks = view_masks  # also give ``view1`` / ``view2`` (loss.view_mask)
+        self.far = cache_far_limit(reader)  # "in view" means within the far limit this cache was built with
         self.epoch = 0 if fixed_epoch is None else fixed_epoch
         self._fixed = fixed_epoch is not None
 
@@ -199,9 +210,9 @@ class PairDataset(torch.utils.data.Dataset):
             out["moving"] = np.asarray(s.moving)[c1].astype(bool)
         if self.view_masks:
             size = depth2.shape
-            out["view1"] = in_view(pc1 + sf, s.K, size)
+            out["view1"] = in_view(pc1 + sf, s.K, size, self.far)
             back = A @ np.linalg.inv(np.asarray(s.T, np.float64))  # frame t+1 -> (augmented) frame t
-            out["view2"] = in_view(geometry.transform_points(back, out["pc2"].astype(np.float64)), s.K, size)
+            out["view2"] = in_view(geometry.transform_points(back, out["pc2"].astype(np.float64)), s.K, size, self.far)
         if self.target_draw:  # drawn only when on
             out["pc2_target"] = s.pc2[independent_draw(rng, len(s.pc2), c2, self.n_points)].astype(np.float32)
         if self.mirror > 0 and rng.random() < self.mirror:  # drawn only when on

@@ -122,3 +122,26 @@ def test_in_view_and_the_batch_masks(tiny_cache):  # noqa: F811
         assert torch.equal(lv.view2, torch.gather(batch.view2, 1, out_o.indices2[l]))
     with pytest.raises(ValueError, match="view_mask"):
         level_inputs(_batch_and_outputs(B=2, N=128)[0], out_o, out_d, view_mask=True)
+
+
+def test_view_masks_use_the_far_limit_the_cache_was_built_with(tiny_cache):  # noqa: F811
+    import math
+
+    import numpy as np
+
+    from pipeline.cache import CacheReader
+    from pipeline.filters import FAR_LIMIT_M
+    from training.data import PairDataset, cache_far_limit, in_view
+
+    r = CacheReader(tiny_cache)  # the manifest is edited in memory only, as stage one would have written it
+    assert cache_far_limit(object()) == FAR_LIMIT_M  # no stage-one filters recorded: stage one's default
+    r.manifest.setdefault("config", {})["filters"] = {"far": True, "far_max_z": 30.0}
+    assert cache_far_limit(r) == 30.0
+    r.manifest["config"]["filters"]["far"] = False
+    assert cache_far_limit(r) == math.inf
+    r.manifest["config"]["filters"].update(far=True, far_max_z=4.0)  # nearer than part of the scene
+    d = PairDataset(r, [3], 128, seed=0, view_masks=True)[0]
+    s = r[3]
+    target = d["pc1"] + d["static_flow"]
+    assert np.array_equal(d["view1"], in_view(target, s.K, s.depth2.shape, 4.0))
+    assert not d["view1"][target[:, 2] > 4.0].any() and (target[:, 2] > 4.0).any()
