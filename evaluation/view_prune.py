@@ -2,9 +2,11 @@
 
 A LiDAR test cloud keeps every return of frame t, including the points that leave the camera's field of
 view or the 35 m range by frame t+1 (8–17 % of the points on the synthetic worlds' LiDAR splits) and so
-have no counterpart in pc2. Stage one's training clouds never hold such points (its occlusion filter
-drops them), and a net that never met them drags its flow, and its rigid ego-motion, towards wrong
-matches for them (docs/learned-flow.md, third round). This wrapper, usable around any method:
+have no counterpart in pc2. Stage one's default occlusion filter drops such points from the training
+clouds, and a net that never met them drags its flow, and its rigid ego-motion, towards wrong matches for
+them; a net trained on clouds that keep them (the demo's cache, ``--filters.occlusion false``) still has
+no correct match to learn for them (docs/learned-flow.md, third round). This wrapper, usable around any
+method:
 
 1. runs the method on the whole clouds and fits one rigid motion (R, t) to its flow (IRLS with Cauchy
    weights, :func:`training.model.ego_motion.rigid_plus_residual`);
