@@ -15,9 +15,11 @@ z forward, metres), seeded by the pair's draw, before the ``n_points`` are sampl
 * ``ground_jitter_m`` (metres): both frames lose the points lower than a cut drawn up to this far
   above the lowest remaining points (the 99th percentile of y in frame t).
 
-One augmentation changes the motion instead of the points kept: ``ego_speed_scale`` (:func:`speed_scaled_view`)
+Two augmentations change the motion instead of the points kept: ``ego_speed_scale`` (:func:`speed_scaled_view`)
 makes a pair look as if the camera had moved a factor faster or slower between t and t+1, so that the
-net meets camera speeds beyond the few the training sequences drove at. Another changes the street:
+net meets camera speeds beyond the few the training sequences drove at; ``ego_turn_deg`` / ``ego_shift_m``
+(:func:`turn_shift_view`) turn and shift frame t's camera at random, so that the motion between the
+frames no longer follows the way the sequences drove. Another changes the street:
 ``mirror`` (:func:`mirror_pair`) reflects a whole pair left–right, a street the world never drove (traffic
 on the other side, every turn the other way), with the depth map and intrinsics reflected to match.
 """
@@ -82,6 +84,17 @@ def speed_scaled_view(T: np.ndarray, scale: float) -> np.ndarray:
     Ts[:3, :3] = Rotation.from_rotvec(scale * Rotation.from_matrix(T[:3, :3]).as_rotvec()).as_matrix()
     Ts[:3, 3] = scale * T[:3, 3]
     return np.linalg.inv(Ts) @ T
+
+
+def turn_shift_view(rng: np.random.Generator, turn_deg: float, shift_m: float) -> np.ndarray:
+    """A 4×4 rigid motion of frame t's camera: a turn about its y axis (vertical, camera frame) by an angle
+    drawn uniformly in ± ``turn_deg`` degrees, then a shift of (x, 0, z) with each of x, z drawn uniformly in
+    ± ``shift_m`` metres. Used like :func:`speed_scaled_view`: frame t's points become ``A p``, frame t+1 and
+    every target in its frame stay, so a flow target ``f`` at ``p`` becomes ``p + f − A p``."""
+    A = np.eye(4)
+    A[:3, :3] = Rotation.from_rotvec([0.0, np.radians(rng.uniform(-turn_deg, turn_deg)), 0.0]).as_matrix()
+    A[[0, 2], 3] = rng.uniform(-shift_m, shift_m, size=2)
+    return A
 
 
 def draw_speed_scale(rng: np.random.Generator, low: float, high: float) -> float:

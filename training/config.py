@@ -48,6 +48,12 @@ class DataConfig:
         log-uniformly in this range (rotation angle and translation alike; frame t's cloud is moved, frame
         t+1 and its depth map stay, :func:`training.augment.speed_scaled_view`), so the net learns camera
         speeds beyond the ones its sequences drove at (KITTI: 0–2.5 m per frame); (1, 1) = off.
+    ego_turn_deg / ego_shift_m: each training pair's frame-t camera is also turned about its vertical (y)
+        axis by an angle drawn uniformly within ± ego_turn_deg (degrees) and shifted in the ground plane
+        (x and z) by up to ± ego_shift_m (metres, each axis uniform); frame t's cloud is moved, frame t+1 and
+        every target in it stay (:func:`training.augment.turn_shift_view`). The pair's ego-motion then no
+        longer follows the training sequences' driving, so the net has to match rather than recall a
+        typical motion; 0 = off.
     mirror: probability per training pair of reflecting it left–right (points, flows, the frame-(t+1)
         depth map and the intrinsics' principal point, :func:`training.augment.mirror_pair`): streets
         the training sequences never drove; 0 = off.
@@ -66,6 +72,8 @@ class DataConfig:
     density_drop: float = 0.0
     ground_jitter_m: float = 0.0
     ego_speed_scale: tuple[float, float] = (1.0, 1.0)
+    ego_turn_deg: float = 0.0
+    ego_shift_m: float = 0.0
     mirror: float = 0.0
 
     def augment(self) -> dict:

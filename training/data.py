@@ -18,7 +18,7 @@ from torch import Tensor
 from core import geometry
 from core.errors import ConfigError, InputError
 from pipeline.filters import FAR_LIMIT_M
-from training.augment import augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view
+from training.augment import augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view, turn_shift_view
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -142,7 +142,8 @@ class PairDataset(torch.utils.data.Dataset):
     def __init__(self, reader, indices: list[int], n_points: int, seed: int, colour_features: bool = True,
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
                  depth2_kept_only: bool = False, augment: dict | None = None,
-                 ego_speed_scale: tuple[float, float] = (1.0, 1.0), mirror: float = 0.0,
+                 ego_speed_scale: tuple[float, float] = (1.0, 1.0), ego_turn_shift: tuple[float, float] = (0.0, 0.0),
+                 mirror: float = 0.0,
                  target_draw: bool = False, view_masks: bool = False) -> None:
         self.reader = reader
         self.indices = list(indices)
@@ -154,6 +155,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.depth2_kept_only = depth2_kept_only
         self.augment = dict(augment or {})  # keyword arguments of training.augment.augment_masks
         self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
+        self.ego_turn_shift = (float(ego_turn_shift[0]), float(ego_turn_shift[1]))  # (degrees, metres)
         self.mirror = float(mirror)
         self.target_draw = target_draw  # also draw ``pc2_target`` (loss.pc2_target independent)
         self.view_masks = view_masks  # also give ``view1`` / ``view2`` (loss.view_mask)
@@ -183,8 +185,12 @@ class PairDataset(torch.utils.data.Dataset):
         sf = s.static_flow[c1].astype(np.float32)
         gt = None if s.gt_flow is None else s.gt_flow[c1].astype(np.float32)
         A = np.eye(4)  # frame t's camera as the augmentations leave it
+        moves = False
         if self.ego_speed_scale != (1.0, 1.0):  # drawn only when on: the default draws stay as they were
-            A = speed_scaled_view(s.T, draw_speed_scale(rng, *self.ego_speed_scale))
+            A, moves = speed_scaled_view(s.T, draw_speed_scale(rng, *self.ego_speed_scale)), True
+        if self.ego_turn_shift != (0.0, 0.0):  # drawn only when on
+            A, moves = turn_shift_view(rng, *self.ego_turn_shift) @ A, True
+        if moves:
             moved = geometry.transform_points(A, pc1.astype(np.float64)).astype(np.float32)
             sf = pc1 + sf - moved  # the targets in frame t+1 stay where they were
             gt = None if gt is None else pc1 + gt - moved

@@ -107,6 +107,8 @@ def check_config(cfg: TrainConfig) -> None:
     scale = tuple(d.ego_speed_scale)
     if len(scale) != 2 or not 0 < scale[0] <= scale[1]:
         raise ConfigError(f"data.ego_speed_scale must be two factors 0 < low <= high, got {d.ego_speed_scale!r}")
+    if d.ego_turn_deg < 0 or d.ego_shift_m < 0:
+        raise ConfigError(f"data.ego_turn_deg and data.ego_shift_m must be >= 0, got {d.ego_turn_deg}, {d.ego_shift_m}")
     if not 0 <= d.mirror <= 1:
         raise ConfigError(f"data.mirror is a probability in [0, 1], got {d.mirror}")
     for name in ("log_every", "val_every", "ckpt_every"):
@@ -150,6 +152,7 @@ class Trainer:
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
                                      augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
+                                     ego_turn_shift=(d.ego_turn_deg, d.ego_shift_m),
                                      mirror=d.mirror, **loss_draws(cfg.loss))
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only,

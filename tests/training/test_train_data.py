@@ -177,6 +177,34 @@ def test_ego_speed_scale_moves_frame_t_only(tiny_cache):  # noqa: F811
     assert all(np.array_equal(plain[k], same[k]) for k in plain)
 
 
+def test_ego_turn_shift_moves_frame_t_by_a_ground_plane_motion(tiny_cache):  # noqa: F811
+    """``ego_turn_shift``: frame t's points move by a turn about y and an (x, z) shift within the bounds;
+    frame t+1 and every target there stay; (0, 0) draws nothing."""
+    r = CacheReader(tiny_cache)
+    plain = PairDataset(r, [3, 9], 256, seed=0)[1]
+    moved = PairDataset(r, [3, 9], 256, seed=0, ego_turn_shift=(2.0, 0.3))[1]
+    assert np.array_equal(plain["pc2"], moved["pc2"])
+    for key in ("static_flow", "gt_flow"):
+        assert np.allclose(plain["pc1"] + plain[key], moved["pc1"] + moved[key], atol=1e-4), key
+    # the motion of frame t: rigid, height kept, a turn about y within 2 degrees and a shift within 0.3 m
+    a, b = plain["pc1"].astype(np.float64), moved["pc1"].astype(np.float64)
+    assert np.allclose(a[:, 1], b[:, 1], atol=1e-4)
+    ca, cb = a - a.mean(0), b - b.mean(0)
+    u, _, vt = np.linalg.svd(cb.T @ ca)
+    R = u @ vt  # b ≈ R a + t
+    yaw = np.degrees(np.arctan2(R[0, 2], R[0, 0]))
+    assert 0 < abs(yaw) <= 2.0 and abs(R[1, 1] - 1) < 1e-6
+    t = b.mean(0) - a.mean(0) @ R.T
+    assert np.all(np.abs(t[[0, 2]]) <= 0.3 + 1e-4) and abs(t[1]) < 1e-4 and np.abs(t).max() > 0
+    same = PairDataset(r, [3, 9], 256, seed=0, ego_turn_shift=(0.0, 0.0))[1]
+    assert all(np.array_equal(plain[k], same[k]) for k in plain)
+
+
+def test_ego_turn_shift_is_checked(tiny_cache, tmp_path):  # noqa: F811
+    with pytest.raises(ConfigError, match="ego_turn_deg"):
+        Trainer(tiny_config(tiny_cache, tmp_path / "bad", data={"ego_turn_deg": -1.0}))
+
+
 def test_ego_speed_scale_is_checked(tiny_cache, tmp_path):  # noqa: F811
     cfg = tiny_config(tiny_cache, tmp_path / "bad", data={"ego_speed_scale": (2.0, 0.5)})
     with pytest.raises(ConfigError, match="ego_speed_scale"):
