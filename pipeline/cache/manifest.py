@@ -34,6 +34,7 @@ from pipeline.cache.layout import (
 )
 from pipeline.cache.integrity import CHUNK_FILES_ATTR, file_problems, read_block_attrs
 from core.errors import InputError
+from core.processes import writer_gone
 
 ExpectedBlocks = Mapping[str, int] | Iterable[tuple[str, int]]
 
@@ -196,21 +197,6 @@ def inspect_block(root: Path, sequence: str, block_index: int, config_hash: str 
     )
 
 
-def pid_alive(pid: int) -> bool:
-    """Whether a process with this id exists on this machine (permission denied counts as alive)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except OSError:
-        return True
-    return True
-
-
 def find_tmp(root: Path) -> list[Path]:
     """Every temp directory/file of a writer under ``root`` (blocks and JSON files)."""
     root = Path(root)
@@ -226,15 +212,17 @@ def find_tmp(root: Path) -> list[Path]:
 def remove_stale_tmp(root: Path, all_hosts: bool = False) -> list[Path]:
     """Remove temp dirs/files left by dead writers; return what was removed.
 
-    A temp name carries its writer's pid and host. By default only this host's entries whose process is
-    gone are removed (another host's writer may be alive on a shared file system); ``all_hosts=True``
-    removes every temp entry but this process's own, for when no writer can be running.
+    A temp name carries its writer's pid and host. By default only this host's entries whose writer is
+    gone (:func:`core.processes.writer_gone`: no such process, or one that reuses the id) are removed
+    (another host's writer may be alive on a shared file system); ``all_hosts=True`` removes every temp
+    entry but this process's own, for when no writer can be running.
     """
     removed = []
     me = host_name()
     for p in find_tmp(root):
         _, pid, host = parse_tmp_name(p.name)
-        if (host == me and pid == os.getpid()) or (not all_hosts and (host != me or pid_alive(pid))):
+        mine = host == me and pid == os.getpid() and not writer_gone(pid, p)
+        if mine or (not all_hosts and (host != me or not writer_gone(pid, p))):
             continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)

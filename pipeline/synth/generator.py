@@ -80,19 +80,18 @@ def _existing(root: Path) -> dict | None:
 
 
 def _remove_stale_temporaries(root: Path) -> None:
-    """Delete ``<root>.tmp-<pid>`` / ``.old-<pid>`` folders left by runs whose process is gone."""
+    """Delete ``<root>.tmp-<pid>`` / ``.old-<pid>`` folders left by runs whose process is gone
+    (:func:`core.processes.writer_gone`: no such process, or one that only reuses the id)."""
+    from core.processes import writer_gone
+
     if not root.parent.is_dir():
         return
     for p in root.parent.glob(f"{root.name}.*-*"):
         kind, _, pid = p.name[len(root.name) + 1:].partition("-")
         if kind not in ("tmp", "old") or not pid.isdigit() or int(pid) == os.getpid():
             continue
-        try:
-            os.kill(int(pid), 0)  # signal 0: only asks whether the process exists
-        except ProcessLookupError:
+        if writer_gone(int(pid), p):
             shutil.rmtree(p, ignore_errors=True)
-        except PermissionError:
-            pass
 
 
 _JOBS: dict[str, SequenceJob] = {}  # inherited by forked workers

@@ -95,8 +95,9 @@ def save_checkpoint(path: str | os.PathLike[str], payload: dict[str, Any]) -> Pa
 
 
 def remove_stale_tmp(path: str | os.PathLike[str]) -> list[Path]:
-    """Remove ``<path>.tmp-<pid>`` files left by writers that no longer run; return what was removed."""
-    from pipeline.cache.manifest import pid_alive
+    """Remove ``<path>.tmp-<pid>`` files left by writers that no longer run (:func:`core.processes.writer_gone`);
+    return what was removed."""
+    from core.processes import writer_gone
 
     path = Path(path)
     removed = []
@@ -105,7 +106,7 @@ def remove_stale_tmp(path: str | os.PathLike[str]) -> list[Path]:
     prefix = f"{path.name}.tmp-"
     for p in path.parent.iterdir():
         rest = p.name[len(prefix):] if p.name.startswith(prefix) else ""
-        if rest.isdigit() and (int(rest) == os.getpid() or not pid_alive(int(rest))):
+        if rest.isdigit() and (int(rest) == os.getpid() or writer_gone(int(rest), p)):
             p.unlink(missing_ok=True)
             removed.append(p)
     return removed
