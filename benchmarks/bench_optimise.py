@@ -1,7 +1,7 @@
 """Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline and the test-time
-refinement of the view-pruned net's flow (evaluation/optimise, evaluation/view_prune.py) — through the real protocol (``run_protocol``: same
-sampled points for every method, one untimed warm-up call, then the mean over scenes), on CPU and, when
-one is present, on CUDA.
+refinement of the view-pruned net's flow (evaluation/optimise, evaluation/view_prune.py) — through the
+real protocol (``run_protocol``: same sampled points for every method, one untimed warm-up call, then the
+mean over scenes), on CPU and, when one is present, on CUDA.
 
 The scenes are a synthetic world's scene-flow test split (generated into a temporary folder unless
 ``--split`` is given). The refined net is an untrained demo-size net unless ``--checkpoint`` is given

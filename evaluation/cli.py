@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "scene names after --mapping")
     r.add_argument("--view-prune", action="store_true",
                    help="also score each checkpoint run twice, the second time without the frame-1 points whose "
-                        "rigid motion leaves pc2's view, as its own row '<net> + view pruning' (evaluation/view_prune.py)")
+                        "rigid motion leaves pc2's view, as its own row '<net> + view pruning' "
+                        "(evaluation/view_prune.py)")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune it refines the view-pruned "
@@ -190,8 +191,8 @@ def _run(args) -> int:
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         methods = [x for m in methods for x in (_stacked(m, wrappers) if any(m is n for n in nets) else [m])]
-    for m in methods:  # the per-scene optimisation (nsfp, refinement) runs on --device too
-        if hasattr(getattr(m, "config", None), "iterations"):
+    for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
+        if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device
     for b, m in named.items():
         if getattr(m, "needs_pose", False) and first.pose is None:

@@ -143,8 +143,9 @@ class LossWeights:
         on the surfaces does (docs/learned-flow.md, third round).
     view_mask: the Chamfer term leaves out the frame-t points whose camera-motion target (p + sf_s) falls
         outside frame t+1's view (image bounds, in front of the camera, nearer than the far limit the
-        cache was built with, ``filters.far_max_z``) and the frame-(t+1) points that were outside frame t's view. They have no counterpart in the
-        other cloud, so the Chamfer term can only pull them onto wrong points. Needs no labels, only the
+        cache was built with, ``filters.far_max_z``) and the frame-(t+1) points that were outside frame t's
+        view. They have no counterpart in the other cloud, so the Chamfer term can only pull them onto wrong
+        points. Needs no labels, only the
         pose stage one used. Meant for caches built with ``--filters.occlusion false``, whose clouds keep
         such points as LiDAR test clouds do (docs/learned-flow.md, third round). False = the paper.
     """

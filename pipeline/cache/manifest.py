@@ -221,8 +221,11 @@ def remove_stale_tmp(root: Path, all_hosts: bool = False) -> list[Path]:
     me = host_name()
     for p in find_tmp(root):
         _, pid, host = parse_tmp_name(p.name)
-        mine = host == me and pid == os.getpid() and not writer_gone(pid, p)
-        if mine or (not all_hosts and (host != me or not writer_gone(pid, p))):
+        if host == me:  # a live writer's entry stays; with all_hosts only this process's own does
+            keep = not writer_gone(pid, p) and (not all_hosts or pid == os.getpid())
+        else:  # another host's writer cannot be judged from here
+            keep = not all_hosts
+        if keep:
             continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)

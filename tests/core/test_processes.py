@@ -66,3 +66,25 @@ def test_the_cache_writer_removes_a_block_temp_whose_id_was_reused(tmp_path: Pat
     finally:
         proc.kill()
         proc.wait(timeout=60)
+
+
+@needs_proc
+def test_all_hosts_clears_every_temp_but_this_process_own(tmp_path: Path) -> None:
+    from core.jsonio import host_name
+    from pipeline.cache.manifest import remove_stale_tmp
+
+    seq = tmp_path / "blocks" / "00"
+    seq.mkdir(parents=True)
+    proc = _sleeper()
+    try:
+        other_host = seq / "00000.tmp-1-otherhost"
+        live_other = seq / f"00001.tmp-{proc.pid}-{host_name()}"
+        own = seq / f"00002.tmp-{os.getpid()}-{host_name()}"
+        for p in (other_host, live_other, own):
+            p.mkdir()
+        assert remove_stale_tmp(tmp_path) == []  # another host's and two live writers' entries stay
+        assert remove_stale_tmp(tmp_path, all_hosts=True) == [other_host, live_other]
+        assert own.exists()
+    finally:
+        proc.kill()
+        proc.wait(timeout=60)
