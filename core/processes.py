@@ -4,9 +4,10 @@ Every writer of this project (cache blocks, JSON files, checkpoints, synthetic w
 temporary name that carries its process id and renames it when complete, so an interrupted run leaves
 only such entries behind, and the next run removes the ones whose writer is gone. A process id alone
 is not proof of life: ids are reused (Linux's default ``pid_max`` is 32768, so a busy machine wraps
-around within minutes), and a stranger holding a dead writer's id would keep its debris forever. Where
-``/proc`` tells when a process started, a process that started after the entry was last modified
-cannot be its writer (a writer creates its entry after it starts).
+around within minutes), and a stranger holding a dead writer's id would keep its debris forever; nor is a
+killed writer that lingers as an unreaped zombie alive. Where ``/proc`` tells when a process started, a
+process that started after the entry was last modified cannot be its writer (a writer creates its entry
+after it starts).
 """
 
 from __future__ import annotations
@@ -22,7 +23,12 @@ START_MARGIN_S = 0.5
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether a process with this id exists on this machine (permission denied counts as alive)."""
+    """Whether a running process with this id exists on this machine (permission denied counts as alive).
+
+    A zombie — killed, but not yet reaped by its parent — does not count: it can write nothing, and where
+    the process that adopts orphans does not reap them (some container init processes) a killed
+    worker stays a zombie for good, so its id alone would keep its temporary entry forever.
+    """
     if pid == os.getpid():
         return True
     try:
@@ -31,18 +37,34 @@ def pid_alive(pid: int) -> bool:
         return False
     except OSError:  # PermissionError included: someone's process exists
         return True
-    return True
+    return process_state(pid) not in ("Z", "X")
+
+
+def _stat_fields(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (field 3, the state, first); None where
+    that cannot be read (no such process, no ``/proc``)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat[stat.rindex(")") + 2:].split()
+    except (OSError, ValueError):
+        return None
+
+
+def process_state(pid: int) -> str | None:
+    """The one-letter state of process ``pid`` (``R``, ``S``, ``Z`` for a zombie, …); None where unknown."""
+    fields = _stat_fields(pid)
+    return fields[0] if fields else None
 
 
 def process_start_time(pid: int) -> float | None:
     """When process ``pid`` started, seconds since the epoch, from ``/proc/<pid>/stat``; None where that
     cannot be read (no such process, no ``/proc``)."""
+    fields = _stat_fields(pid)
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        ticks = int(stat[stat.rindex(")") + 2:].split()[19])  # field 22, after the command name
+        ticks = int(fields[19])  # field 22: start time in clock ticks since boot
         boot = time.time() - time.clock_gettime(time.CLOCK_BOOTTIME)
         return boot + ticks / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, AttributeError):
+    except (TypeError, ValueError, IndexError, AttributeError, OSError):
         return None
 
 
@@ -60,4 +82,4 @@ def writer_gone(pid: int, entry: str | os.PathLike[str]) -> bool:
     return started is not None and started > changed + START_MARGIN_S
 
 
-__all__ = ["pid_alive", "process_start_time", "writer_gone", "START_MARGIN_S"]
+__all__ = ["pid_alive", "process_state", "process_start_time", "writer_gone", "START_MARGIN_S"]

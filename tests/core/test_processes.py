@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from core.processes import START_MARGIN_S, pid_alive, process_start_time, writer_gone
+from core.processes import START_MARGIN_S, pid_alive, process_start_time, process_state, writer_gone
 
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc for start times")
 
@@ -25,6 +25,25 @@ def test_a_finished_process_is_gone(tmp_path: Path) -> None:
     entry = tmp_path / f"x.tmp-{proc.pid}"
     entry.mkdir()
     assert not pid_alive(proc.pid) and writer_gone(proc.pid, entry)
+
+
+@needs_proc
+def test_a_killed_writer_not_yet_reaped_is_gone(tmp_path: Path) -> None:
+    """A zombie answers signal 0 but writes nothing (and may never be reaped where init does not)."""
+    proc = _sleeper()
+    try:
+        entry = tmp_path / f"x.tmp-{proc.pid}"
+        entry.mkdir()
+        assert pid_alive(proc.pid) and not writer_gone(proc.pid, entry)
+        proc.kill()  # not waited for: it stays a zombie child of this process
+        deadline = time.monotonic() + 30
+        while process_state(proc.pid) != "Z":
+            assert time.monotonic() < deadline, "the killed child never became a zombie"
+            time.sleep(0.01)
+        assert not pid_alive(proc.pid) and writer_gone(proc.pid, entry)
+    finally:
+        proc.kill()
+        proc.wait(timeout=60)
 
 
 @needs_proc
