@@ -172,6 +172,12 @@ def _view_pruned(method: FlowMethod) -> FlowMethod:
     return view_pruned(method)  # label-free two-pass inference (evaluation/view_prune.py)
 
 
+def _ego_polished(method: FlowMethod) -> FlowMethod:
+    from evaluation.ego_polish import ego_polished
+
+    return ego_polished(method)  # the method's ego-motion sharpened by robust ICP (evaluation/ego_polish.py)
+
+
 _METHODS: dict[str, MethodEntry] = {
     "zero": MethodEntry(_zero),
     "static": MethodEntry(StaticPoseMethod, note="splits with poses"),
@@ -182,6 +188,8 @@ _METHODS: dict[str, MethodEntry] = {
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
     "view-prune": MethodEntry(_view_pruned, wraps=True,
                               note="two passes, the second without the points leaving pc2's view"),
+    "ego-polish": MethodEntry(_ego_polished, wraps=True,
+                              note="the method's ego-motion sharpened by robust ICP started from it"),
 }
 
 

@@ -56,8 +56,10 @@ def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.
             & (points[:, 2] > 0) & (points[:, 2] <= pc2[:, 2].max()))
 
 
-def rigid_fit(pc1: np.ndarray, flow: np.ndarray, cfg: ViewPruneConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(R (3, 3), t (3,)) fitted robustly to ``flow`` at ``pc1`` (camera 1 → camera 2, metres)."""
+def rigid_fit(pc1: np.ndarray, flow: np.ndarray, sigma: float = 0.25, iterations: int = 4,
+              mad_factor: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) fitted robustly to ``flow`` at ``pc1`` (camera 1 → camera 2, metres); ``sigma``
+    (metres), ``iterations`` and ``mad_factor`` as :func:`training.model.ego_motion.rigid_plus_residual`."""
     import torch
 
     from training.model.ego_motion import rigid_plus_residual
@@ -65,7 +67,7 @@ def rigid_fit(pc1: np.ndarray, flow: np.ndarray, cfg: ViewPruneConfig) -> tuple[
     def t(x):
         return torch.tensor(np.asarray(x, np.float64))[None]
 
-    _, R, tr, _ = rigid_plus_residual(t(pc1), t(flow), cfg.sigma, cfg.iterations, cfg.mad_factor)
+    _, R, tr, _ = rigid_plus_residual(t(pc1), t(flow), sigma, iterations, mad_factor)
     return R[0].numpy(), tr[0].numpy()
 
 
@@ -85,7 +87,7 @@ class ViewPruned:
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         cfg = self.config
         first = np.asarray(self.inner(pc1, pc2, color1, color2), np.float32)
-        R, t = rigid_fit(pc1, first, cfg)
+        R, t = rigid_fit(pc1, first, cfg.sigma, cfg.iterations, cfg.mad_factor)
         target = np.asarray(pc1, np.float64) @ R.T + t
         keep = np.flatnonzero(inside_extent(target, np.asarray(pc2, np.float64), cfg.margin_deg))
         if len(keep) == len(pc1) or len(keep) < max(64, cfg.min_share * len(pc1)):

@@ -7,6 +7,13 @@ Each iteration pairs every transformed pc1 point with its nearest pc2 point, kee
 * point-to-plane: minimise ``Σ ((R p + t − q) · n_q)²`` with the target normals ``n_q`` (PCA over pc2's
   k nearest neighbours), linearised for a small rotation ``R ≈ I + [ω]×`` and solved as a 6×6 system.
 
+With ``kernel="cauchy"`` every pair is weighted by ``w = 1 / (1 + (r / s)²)`` of its residual ``r``
+(point-to-point distance, or point-to-plane distance), with the scale ``s = max(kernel_scale_min,
+1.4826 · median |r|)`` re-estimated at every iteration (iteratively re-weighted least squares; the
+median absolute residual times 1.4826 estimates a Gaussian's σ robustly). Without it (``"none"``, the
+default and Open3D's behaviour) every pair within the distance limit counts fully, so a few wrong pairs,
+a moving car or points that have left the view, can pull the fit away.
+
 It stops when the change of both fitness (inlier fraction) and inlier RMSE falls below ``tolerance``
 (Open3D's ``ICPConvergenceCriteria`` rule, defaults 1e-6 / 1e-6 / 30 iterations) or after
 ``max_iterations``. Distances in metres; the result maps pc1 (frame 1) onto pc2 (frame 2).
@@ -30,6 +37,7 @@ from evaluation.baselines.base import (
 from evaluation.baselines.normals import estimate_normals
 
 METHODS = ("point_to_point", "point_to_plane")
+KERNELS = ("none", "cauchy")
 
 
 @dataclass
@@ -43,6 +51,9 @@ class ICPConfig:
         tolerance: stop when |Δfitness| and |ΔRMSE| (metres) both fall below it.
         normal_max_nn: neighbours per target normal (point-to-plane).
         normal_radius: optional radius (metres) bounding those neighbours.
+        kernel: ``"none"`` (every pair within the limit counts fully) or ``"cauchy"`` (robust weights,
+            module docstring).
+        kernel_scale_min: metres; the smallest Cauchy scale (a residual of this size halves a pair's weight).
     """
 
     method: str = "point_to_point"
@@ -51,20 +62,35 @@ class ICPConfig:
     tolerance: float = 1e-6
     normal_max_nn: int = 20
     normal_radius: float | None = None
+    kernel: str = "none"
+    kernel_scale_min: float = 0.05
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if not self.kernel_scale_min > 0:
+            raise ValueError(f"kernel_scale_min must be > 0, got {self.kernel_scale_min}")
         if self.max_correspondence_distance <= 0 or self.max_iterations < 1:
             raise ValueError("max_correspondence_distance must be > 0 and max_iterations >= 1")
 
 
-def _point_to_plane_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray) -> np.ndarray | None:
-    """Increment (4×4) minimising the linearised point-to-plane error, None if degenerate."""
+def _cauchy_weights(r: np.ndarray, scale_min: float) -> np.ndarray:
+    """``1 / (1 + (r / s)²)`` with ``s = max(scale_min, 1.4826 · median |r|)`` (module docstring)."""
+    s = max(scale_min, 1.4826 * float(np.median(np.abs(r))))
+    return 1.0 / (1.0 + (r / s) ** 2)
+
+
+def _point_to_plane_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray,
+                         scale_min: float | None = None) -> np.ndarray | None:
+    """Increment (4×4) minimising the linearised point-to-plane error (Cauchy-weighted when ``scale_min``
+    is given), None if degenerate."""
     r = np.einsum("ni,ni->n", src - dst, normals)
+    w = np.ones_like(r) if scale_min is None else _cauchy_weights(r, scale_min)
     jac = np.hstack([np.cross(src, normals), normals])  # d r / d (ω, t)
-    jtj = jac.T @ jac
-    jtr = jac.T @ r
+    jtj = (jac * w[:, None]).T @ jac
+    jtr = (jac * w[:, None]).T @ r
     if np.linalg.matrix_rank(jtj) < 6:
         return None
     xi = np.linalg.solve(jtj, -jtr)
@@ -89,6 +115,7 @@ def icp(
     if cfg.method == "point_to_plane":
         normals = estimate_normals(dst, cfg.normal_max_nn, cfg.normal_radius, tree=tree)
     min_pairs = 3 if cfg.method == "point_to_point" else 6
+    scale_min = cfg.kernel_scale_min if cfg.kernel == "cauchy" else None
 
     def correspond(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
         src = apply_transform(t, src0)
@@ -107,10 +134,12 @@ def icp(
         if n_used < min_pairs:
             break
         if cfg.method == "point_to_point":
-            step: np.ndarray | None = kabsch(src[inl], dst[idx[inl]])
+            a, b = src[inl], dst[idx[inl]]
+            w = None if scale_min is None else _cauchy_weights(np.linalg.norm(a - b, axis=1), scale_min)
+            step: np.ndarray | None = kabsch(a, b, w)
         else:
             assert normals is not None
-            step = _point_to_plane_step(src[inl], dst[idx[inl]], normals[idx[inl]])
+            step = _point_to_plane_step(src[inl], dst[idx[inl]], normals[idx[inl]], scale_min)
             if step is None:
                 break
         transform = step @ transform

@@ -21,65 +21,7 @@ from evaluation.baselines.fpfh import FEATURE_DIM, pair_features, point_spacing
 from evaluation.baselines.normals import estimate_normals
 from evaluation.methods import StaticPoseMethod
 from core.geometry import static_flow
-
-# ------------------------------------------------------------------------------------------------
-# a structured synthetic scene in camera axes (x right, y down, z forward): road, two walls, boxes
-
-
-def _box_surface(rng: np.random.Generator, centre: tuple, size: tuple, n: int) -> np.ndarray:
-    c, s = np.asarray(centre, float), np.asarray(size, float)
-    faces, areas = [], []
-    for ax in range(3):
-        others = [a for a in range(3) if a != ax]
-        for sign in (-1.0, 1.0):
-            faces.append((ax, sign, others))
-            areas.append(s[others[0]] * s[others[1]])
-    counts = rng.multinomial(n, np.asarray(areas) / sum(areas))
-    out = []
-    for (ax, sign, others), k in zip(faces, counts):
-        p = np.empty((k, 3))
-        p[:, ax] = c[ax] + sign * s[ax] / 2
-        for a in others:
-            p[:, a] = c[a] + (rng.random(k) - 0.5) * s[a]
-        out.append(p)
-    return np.concatenate(out)
-
-
-def structured_scene(rng: np.random.Generator, n: int) -> np.ndarray:
-    k = n // 4
-    road = np.stack([rng.uniform(-8, 8, k), np.full(k, 1.6), rng.uniform(2, 20, k)], 1)
-    k2 = n // 8
-    left_wall = np.stack([np.full(k2, -7.0), rng.uniform(-2, 1.6, k2), rng.uniform(2, 20, k2)], 1)
-    back_wall = np.stack([rng.uniform(-7, 8, k2), rng.uniform(-2, 1.6, k2), np.full(k2, 20.0)], 1)
-    boxes = [((-3, 0.9, 8), (1.8, 1.4, 4.0)), ((3, 0.6, 12), (2.0, 2.0, 2.0)),
-             ((0.5, 1.1, 15), (1.0, 1.0, 3.0)), ((5, 0.0, 6), (1.0, 3.2, 1.0))]
-    rest = n - len(road) - len(left_wall) - len(back_wall)
-    sizes = [rest // 4] * 3 + [rest - 3 * (rest // 4)]
-    parts = [road, left_wall, back_wall] + [_box_surface(rng, c, s, m) for (c, s), m in zip(boxes, sizes)]
-    return np.concatenate(parts)
-
-
-def motion(deg: float, axis: tuple, t: tuple) -> np.ndarray:
-    a = np.asarray(axis, float)
-    out = np.eye(4)
-    out[:3, :3] = rotation_from_vector(np.radians(deg) * a / np.linalg.norm(a))
-    out[:3, 3] = t
-    return out
-
-
-def scene_pair(seed: int, n: int, transform: np.ndarray, noise: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
-    """pc1 and pc2 = T(scene) sampled independently (90 % of a common pool each) plus 2 mm noise."""
-    rng = np.random.default_rng(seed)
-    pool = structured_scene(rng, int(n / 0.9) + 1)
-    a = rng.permutation(len(pool))[:n]
-    b = rng.permutation(len(pool))[:n]
-    pc1 = pool[a] + rng.normal(0, noise, (n, 3))
-    pc2 = pool[b] @ transform[:3, :3].T + transform[:3, 3] + rng.normal(0, noise, (n, 3))
-    return pc1, pc2
-
-
-SMALL = motion(5.0, (0.1, 1.0, 0.05), (0.3, 0.05, 1.0))  # a typical frame-to-frame ego motion
-YAW30 = motion(30.0, (0.0, 1.0, 0.0), (0.5, 0.0, 1.5))  # a 30° misalignment
+from testkit.rigid_scene import SMALL, YAW30, box_surface, motion, scene_pair, structured_scene
 
 
 # ------------------------------------------------------------------------------------------------
@@ -149,7 +91,28 @@ def test_icp_recovers_small_motion(method: str) -> None:
     assert np.linalg.norm(flow - true_flow, axis=1).mean() < 0.02
 
 
+@pytest.mark.parametrize("method", ["point_to_point", "point_to_plane"])
+def test_cauchy_kernel_ignores_a_car_that_moves_on_its_own(method: str) -> None:
+    """A car (a seventh of the points) drives 0.4 m right and 0.5 m closer than the camera's motion says:
+    with Cauchy weights ICP still finds the camera's motion to a few millimetres, unweighted it is pulled
+    off by a centimetre (point-to-point) to several (point-to-plane)."""
+    pc1, pc2 = scene_pair(3, 3000, SMALL)
+    car = box_surface(np.random.default_rng(4), (-1.0, 0.8, 9.0), (1.8, 1.6, 4.2), 500)
+    pc1 = np.concatenate([pc1, car])
+    pc2 = np.concatenate([pc2, car @ SMALL[:3, :3].T + SMALL[:3, 3] + [0.4, 0.0, -0.5]])
+    errors = {}
+    for kernel in ("none", "cauchy"):
+        cfg = ICPConfig(method=method, max_correspondence_distance=1.0, kernel=kernel)
+        errors[kernel] = transform_error(icp(pc1, pc2, cfg).transform, SMALL)[1]
+    assert errors["cauchy"] < 0.005, errors
+    assert errors["none"] > 2 * errors["cauchy"], errors
+
+
 def test_icp_config_rejects_unknown_method() -> None:
+    with pytest.raises(ValueError, match="kernel"):
+        ICPConfig(kernel="huber")
+    with pytest.raises(ValueError, match="kernel_scale_min"):
+        ICPConfig(kernel="cauchy", kernel_scale_min=0.0)
     with pytest.raises(ValueError, match="method"):
         ICPConfig(method="point_to_line")
     assert ICPBaseline(ICPConfig(method="point_to_plane")).name == "icp-p2l"
