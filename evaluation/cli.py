@@ -63,14 +63,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint run twice, the second time without the frame-1 points whose "
                         "rigid motion leaves pc2's view, as its own row '<net> + view pruning' "
                         "(evaluation/view_prune.py)")
-    r.add_argument("--ego-polish", action="store_true",
-                   help="also score each checkpoint with its rigid ego-motion sharpened by robust point-to-plane "
-                        "ICP started from it, as its own row '<net> + ego polish' (evaluation/ego_polish.py); "
+    r.add_argument("--rigid-polish", action="store_true",
+                   help="also score each checkpoint with its ego-motion and its movers' motions sharpened by robust "
+                        "ICP started from its flow, as its own row '<net> + rigid polish' (evaluation/rigid_polish.py); "
                         "with --view-prune it polishes the view-pruned flow")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
-                        "'<net> + refinement' (evaluation/optimise); with --view-prune / --ego-polish it refines "
-                        "their flow: '<net> + view pruning + ego polish + refinement'")
+                        "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
+                        "their flow: '<net> + view pruning + rigid polish + refinement'")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -106,8 +106,8 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
 
 
 def _stacked(net, wrappers: list[str]) -> list:
-    """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``ego-polish``, then
-    ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + ego
+    """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
+    ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
     polish + refinement')."""
     from evaluation.methods import make_method
 
@@ -186,14 +186,14 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
-    if (args.refine or args.view_prune or args.ego_polish) and not nets:
-        raise ConfigError("--refine, --view-prune and --ego-polish wrap a net: give at least one --checkpoint")
+    if (args.refine or args.view_prune or args.rigid_polish) and not nets:
+        raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
     methods = [*nets, *named.values()]
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
-    wrappers = [w for w, on in (("view-prune", args.view_prune), ("ego-polish", args.ego_polish),
+    wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         methods = [x for m in methods for x in (_stacked(m, wrappers) if any(m is n for n in nets) else [m])]

@@ -172,10 +172,10 @@ def _view_pruned(method: FlowMethod) -> FlowMethod:
     return view_pruned(method)  # label-free two-pass inference (evaluation/view_prune.py)
 
 
-def _ego_polished(method: FlowMethod) -> FlowMethod:
-    from evaluation.ego_polish import ego_polished
+def _rigid_polished(method: FlowMethod) -> FlowMethod:
+    from evaluation.rigid_polish import rigid_polished
 
-    return ego_polished(method)  # the method's ego-motion sharpened by robust ICP (evaluation/ego_polish.py)
+    return rigid_polished(method)  # ego-motion and movers sharpened by robust ICP (evaluation/rigid_polish.py)
 
 
 _METHODS: dict[str, MethodEntry] = {
@@ -188,8 +188,8 @@ _METHODS: dict[str, MethodEntry] = {
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
     "view-prune": MethodEntry(_view_pruned, wraps=True,
                               note="two passes, the second without the points leaving pc2's view"),
-    "ego-polish": MethodEntry(_ego_polished, wraps=True,
-                              note="the method's ego-motion sharpened by robust ICP started from it"),
+    "rigid-polish": MethodEntry(_rigid_polished, wraps=True,
+                              note="the method's ego-motion and movers sharpened by robust ICP started from its flow"),
 }
 
 

@@ -278,21 +278,21 @@ def test_nsfp_baseline_and_refine_rows(world: Path, checkpoint: Path, tmp_path: 
     # --refine needs a net to refine
     assert main(["run", "--split", split, "--baselines", "zero", "--refine", "--out", str(tmp_path / "x"),
                  "--no-progress"]) == 2
-    assert "--refine, --view-prune and --ego-polish wrap a net" in capsys.readouterr().err
+    assert "--refine, --view-prune and --rigid-polish wrap a net" in capsys.readouterr().err
 
 
-def test_wrappers_stack_view_prune_then_ego_polish_then_refine() -> None:
-    """``--view-prune --ego-polish --refine``: each wrapper starts from the row before, each its own row."""
+def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
+    """``--view-prune --rigid-polish --refine``: each wrapper starts from the row before, each its own row."""
     from evaluation.cli import _stacked
-    from evaluation.ego_polish import EgoPolished
+    from evaluation.rigid_polish import RigidPolished
     from evaluation.optimise import RefinedMethod
     from evaluation.view_prune import ViewPruned
 
     net = make_method("zero")
-    rows = _stacked(net, ["view-prune", "ego-polish", "refine"])
-    assert [r.name for r in rows] == ["zero", "zero + view pruning", "zero + view pruning + ego polish",
-                                      "zero + view pruning + ego polish + refinement"]
+    rows = _stacked(net, ["view-prune", "rigid-polish", "refine"])
+    assert [r.name for r in rows] == ["zero", "zero + view pruning", "zero + view pruning + rigid polish",
+                                      "zero + view pruning + rigid polish + refinement"]
     assert isinstance(rows[1], ViewPruned) and rows[1].inner is net
-    assert isinstance(rows[2], EgoPolished) and rows[2].inner is rows[1]
+    assert isinstance(rows[2], RigidPolished) and rows[2].inner is rows[1]
     assert isinstance(rows[3], RefinedMethod) and rows[3].base is rows[2]
     assert [r.name for r in _stacked(net, ["refine"])] == ["zero", "zero + refinement"]

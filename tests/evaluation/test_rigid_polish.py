@@ -1,4 +1,4 @@
-"""Ego polish (evaluation/ego_polish.py): a rough ego-motion made precise, movers left to the method."""
+"""Rigid polish (evaluation/rigid_polish.py): a rough ego-motion made precise, then a rough mover."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from evaluation.baselines.base import transform_error
-from evaluation.ego_polish import EgoPolishConfig, EgoPolished, polish_ego
+from evaluation.rigid_polish import RigidPolishConfig, RigidPolished, polish_rigid
 from evaluation.methods import make_method
 from testkit.rigid_scene import SMALL, box_surface, motion, scene_pair
 
@@ -27,15 +27,15 @@ def _scene(seed: int = 3):
 
 
 class _RoughNet:
-    """A toy method whose ego-motion is 0.6° and 0.3 m off (with 5 cm of per-point noise) and which gets
-    the car's own motion right."""
+    """A toy method whose ego-motion is 0.6° and 0.3 m off and whose car flow is ``car_error`` off (with
+    5 cm of per-point noise on top)."""
 
     name = "rough"
 
-    def __init__(self, flow: np.ndarray, is_car: np.ndarray, pc1: np.ndarray):
+    def __init__(self, flow: np.ndarray, is_car: np.ndarray, pc1: np.ndarray, car_error=(0.0, 0.0, 0.0)):
         wrong = motion(0.6, (0.0, 1.0, 0.0), (0.1, 0.0, 0.28)) @ SMALL
         self.out = pc1 @ wrong[:3, :3].T + wrong[:3, 3] - pc1
-        self.out[is_car] = flow[is_car]
+        self.out[is_car] = flow[is_car] + car_error
         self.out += np.random.default_rng(9).normal(0, 0.05, self.out.shape)
 
     def __call__(self, pc1, pc2, color1=None, color2=None):
@@ -46,7 +46,7 @@ def test_polish_makes_a_rough_ego_motion_precise_and_leaves_the_car_to_the_metho
     pc1, pc2, truth, is_car = _scene()
     rough = _RoughNet(truth, is_car, pc1)
     before = np.linalg.norm(rough(pc1, pc2) - truth, axis=1)
-    flow, T, static = polish_ego(pc1, pc2, rough(pc1, pc2))
+    flow, T, static = polish_rigid(pc1, pc2, rough(pc1, pc2), RigidPolishConfig(objects=False))
     after = np.linalg.norm(flow - truth, axis=1)
     rot_err, t_err = transform_error(T, SMALL)
     assert rot_err < 0.05 and t_err < 0.01, (rot_err, t_err)
@@ -57,10 +57,21 @@ def test_polish_makes_a_rough_ego_motion_precise_and_leaves_the_car_to_the_metho
     assert after[is_car].mean() <= before[is_car].mean() + 0.1
 
 
+def test_objects_step_registers_a_rough_car_onto_its_new_place():
+    """The method has the car's motion 0.3 m off: the cluster's ICP, started there, finds it to a few cm."""
+    pc1, pc2, truth, is_car = _scene()
+    rough = _RoughNet(truth, is_car, pc1, car_error=(0.2, 0.0, 0.22))
+    before = np.linalg.norm(rough(pc1, pc2) - truth, axis=1)[is_car].mean()
+    flow, _, static = polish_rigid(pc1, pc2, rough(pc1, pc2))
+    after = np.linalg.norm(flow - truth, axis=1)
+    assert before > 0.25 and after[is_car].mean() < 0.03, (before, after[is_car].mean())
+    assert after[~is_car].mean() < 0.02 and not static[is_car].any()
+
+
 def test_too_few_points_agreeing_returns_the_method_flow():
     pc1, pc2, truth, _ = _scene()
     few = pc1[:20]
-    flow, T, static = polish_ego(few, pc2, truth[:20])
+    flow, T, static = polish_rigid(few, pc2, truth[:20])
     np.testing.assert_array_equal(flow, truth[:20].astype(np.float32))
     assert not static.any() and T.shape == (4, 4)
 
@@ -69,13 +80,14 @@ def test_wrapper_names_its_row_and_delegates():
     pc1, pc2, truth, is_car = _scene()
     rough = _RoughNet(truth, is_car, pc1)
     rough.n_points = 2048
-    wrapped = make_method("ego-polish", rough)
-    assert isinstance(wrapped, EgoPolished) and wrapped.name == "rough + ego polish" and wrapped.n_points == 2048
-    np.testing.assert_array_equal(wrapped(pc1, pc2), polish_ego(pc1, pc2, rough(pc1, pc2))[0])
+    wrapped = make_method("rigid-polish", rough)
+    assert isinstance(wrapped, RigidPolished) and wrapped.name == "rough + rigid polish" and wrapped.n_points == 2048
+    np.testing.assert_array_equal(wrapped(pc1, pc2), polish_rigid(pc1, pc2, rough(pc1, pc2))[0])
 
 
 @pytest.mark.parametrize("field, value", [("iterations", 0), ("max_distance", 0.0), ("static_scale_min", -1.0),
-                                          ("min_points", 3), ("mad_factor", -1.0)])
+                                          ("min_points", 3), ("mad_factor", -1.0), ("cluster_radius", 0.0),
+                                          ("cluster_min_fitness", 1.0), ("cluster_iterations", 0)])
 def test_config_refuses_impossible_settings(field, value):
     with pytest.raises(ValueError):
-        EgoPolishConfig(**{field: value})
+        RigidPolishConfig(**{field: value})
