@@ -1,5 +1,6 @@
-"""Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline and the test-time
-refinement of the view-pruned net's flow (evaluation/optimise, evaluation/view_prune.py) — through the
+"""Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline, the rigid polish
+of the view-pruned net's flow and the test-time refinement of the polished and of the view-pruned flow
+(evaluation/optimise, evaluation/rigid_polish.py, evaluation/view_prune.py) — through the
 real protocol (``run_protocol``: same sampled points for every method, one untimed warm-up call, then the
 mean over scenes), on CPU and, when one is present, on CUDA.
 
@@ -44,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     from evaluation.methods import NetMethod
     from evaluation.optimise import NSFPConfig, NSFPMethod, RefineConfig, RefinedMethod
     from evaluation.protocols import ProtocolConfig, run_protocol
+    from evaluation.rigid_polish import rigid_polished
     from evaluation.view_prune import view_pruned
 
     if args.threads:
@@ -63,8 +65,10 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---|---:|---:|---:|")
         for dev in devices:
             net = NetMethod(ckpt, device=dev, name="ours")
-            pruned = view_pruned(net)  # the demo's "+ view pruning + refinement" row refines this flow
-            methods = [net, pruned, NSFPMethod(NSFPConfig(device=dev)), RefinedMethod(pruned, RefineConfig(device=dev))]
+            pruned = view_pruned(net)
+            polished = rigid_polished(pruned)  # the demo's "+ view pruning + rigid polish (+ refinement)" rows
+            methods = [net, pruned, polished, NSFPMethod(NSFPConfig(device=dev)),
+                       RefinedMethod(polished, RefineConfig(device=dev)), RefinedMethod(pruned, RefineConfig(device=dev))]
             for res, m in zip(run_protocol(split, methods, cfg, progress=False), methods):
                 last = getattr(m, "last", None)
                 its = str(last.iterations) if last is not None else "–"

@@ -77,13 +77,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", default="as-trained",
                    help="comma list of test-time settings to score each snapshot under: 'as-trained', or '+'-joined "
                         "switches 'ego' (model.ego_head on), 'input' / 'running' (model.eval_norm_stats), "
-                        "'prune' (two-pass view pruning, evaluation/view_prune.py)")
+                        "'prune' (two-pass view pruning, evaluation/view_prune.py), 'polish' (rigid polish, "
+                        "evaluation/rigid_polish.py; after 'prune' when both are given)")
     p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
     import torch
 
     from evaluation.methods import NetMethod, make_baseline
+    from evaluation.rigid_polish import rigid_polished
     from evaluation.view_prune import view_pruned
     from evaluation.readers import load_split
     from training.selection import score_checkpoint
@@ -125,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
                 net.net.set_eval_norm_stats("running")
             if "prune" in variant.split("+"):
                 net = view_pruned(net)
+                net.name = variant
+            if "polish" in variant.split("+"):
+                net = rigid_polished(net)
                 net.name = variant
             nets.append(net)
         scores = score_splits(nets, splits, cfg.data.n_points, cfg.model.output_points[0])
