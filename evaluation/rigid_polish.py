@@ -43,6 +43,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from evaluation.wrapping import MethodWrapper
+
 
 @dataclass
 class RigidPolishConfig:
@@ -161,18 +163,11 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
             flow[rows] = moved - pts
 
 
-class RigidPolished:
-    """``inner`` (any flow method) with its ego-motion polished by robust ICP (:func:`polish_rigid`)."""
+class RigidPolished(MethodWrapper):
+    """``inner`` (any flow method) with its ego-motion and movers polished by robust ICP (:func:`polish_rigid`)."""
 
-    def __init__(self, inner, config: RigidPolishConfig | None = None) -> None:
-        self.inner = inner
-        self.config = config or RigidPolishConfig()
-        self.name = f"{inner.name} + rigid polish"
-
-    def __getattr__(self, key):  # n_points, n_score, uses_colour, … of the wrapped method
-        if key == "inner":
-            raise AttributeError(key)
-        return getattr(self.inner, key)
+    suffix = "rigid polish"
+    config_type = RigidPolishConfig
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         flow = self.inner(pc1, pc2, color1, color2)
@@ -180,5 +175,5 @@ class RigidPolished:
 
 
 def rigid_polished(method, config: RigidPolishConfig | None = None) -> RigidPolished:
-    """``method`` with its ego-motion polished, named ``"<method name> + rigid polish"`` (its own row)."""
+    """``method`` with its ego-motion and movers polished, named ``"<method name> + rigid polish"`` (its own row)."""
     return RigidPolished(method, config)

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evaluation.wrapping import MethodWrapper
+
 
 @dataclass
 class ViewPruneConfig:
@@ -71,18 +73,11 @@ def rigid_fit(pc1: np.ndarray, flow: np.ndarray, sigma: float = 0.25, iterations
     return R[0].numpy(), tr[0].numpy()
 
 
-class ViewPruned:
+class ViewPruned(MethodWrapper):
     """``inner`` (any flow method) run twice, the second time without the points leaving pc2's view."""
 
-    def __init__(self, inner, config: ViewPruneConfig | None = None) -> None:
-        self.inner = inner
-        self.config = config or ViewPruneConfig()
-        self.name = f"{inner.name} + view pruning"
-
-    def __getattr__(self, key):  # n_points, n_score, uses_colour, … of the wrapped method
-        if key == "inner":
-            raise AttributeError(key)
-        return getattr(self.inner, key)
+    suffix = "view pruning"
+    config_type = ViewPruneConfig
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         cfg = self.config
