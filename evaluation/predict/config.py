@@ -52,6 +52,10 @@ class PredictConfig:
     sample_seed: int = field(default=0, metadata={
         "help": "sampling seed (with the pair's name, as monoflow-evaluate's --seeds)"})
     flow_batch: int = field(default=4, metadata={"help": "pairs per flow-net forward pass"})
+    rigid_polish: bool = field(default=False, metadata={
+        "help": "sharpen the net's flow by the rigid polish: its ego-motion and each mover's motion registered "
+                "by robust ICP started from it (evaluation/rigid_polish.py; monoflow-evaluate's '+ rigid polish' "
+                "row)"})
     moving_threshold: float = field(default=MOVING_THRESHOLD_M, metadata={
         "help": "metres per frame pair: a point is 'moving' when |flow - static flow| exceeds this"})
     device: str = field(default="auto", metadata={"help": "auto | cpu | cuda[:i] (auto = the GPU when there is one)"})

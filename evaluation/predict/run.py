@@ -137,7 +137,8 @@ def pairs_of_block(block, sequence: str) -> list[PairOutput]:
 class FlowPredictor:
     """A monoflow-train checkpoint run on pairs exactly as ``monoflow-evaluate``'s full protocol runs it."""
 
-    def __init__(self, checkpoint: str, device: str = "auto", n_points: int = 0, seed: int = 0) -> None:
+    def __init__(self, checkpoint: str, device: str = "auto", n_points: int = 0, seed: int = 0,
+                 rigid_polish: bool = False) -> None:
         from evaluation.methods import NetMethod
         from evaluation.protocols import ProtocolConfig
 
@@ -148,6 +149,7 @@ class FlowPredictor:
                               f"per cloud, --n_points is {n}")
         self.protocol = ProtocolConfig(protocol="full", n_points=n, n_score=1, seeds=(seed,), warmup=False)
         self.seed = seed
+        self.rigid_polish = rigid_polish  # monoflow-evaluate's "+ rigid polish" row, on the sampled points
 
     def scene(self, pair: PairOutput):
         """The :class:`PreparedScene` monoflow-evaluate would build for this pair (colours in [0, 1])."""
@@ -179,7 +181,12 @@ class FlowPredictor:
             f1, f2 = (t([s.color1 for s in scenes]), t([s.color2 for s in scenes])) if use else (None, None)
             out = m.net(p1, p2, f1, f2)
             sampled = three_nn_interpolate(p1, out.points[0], out.flows[0].float()).cpu().numpy()
-        return [interpolate_flow(s.points, s.pc1, sampled[b].astype(np.float32)) for b, s in enumerate(scenes)]
+        flows = [sampled[b].astype(np.float32) for b in range(len(scenes))]
+        if self.rigid_polish:
+            from evaluation.rigid_polish import polish_rigid
+
+            flows = [polish_rigid(s.pc1, s.pc2, f)[0] for s, f in zip(scenes, flows)]
+        return [interpolate_flow(s.points, s.pc1, f) for s, f in zip(scenes, flows)]
 
 
 # ----------------------------------------------------------------------------------------------- parts
@@ -312,7 +319,8 @@ def run_predict(cfg: PredictConfig) -> PredictSummary:
 
         require_matplotlib()  # a missing optional extra is reported before any work
     warnings = announce_scale_problems(cfg.depth, cfg.pose, cfg.scale)
-    predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed)  # fails early on a bad file
+    predictor = FlowPredictor(cfg.checkpoint, cfg.device, cfg.n_points, cfg.sample_seed,
+                              cfg.rigid_polish)  # fails early on a bad file
     name = cfg.name or default_name(cfg.input)
     out = Path(cfg.out)
     h5_path = out / f"{name}.h5"

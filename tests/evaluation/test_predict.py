@@ -92,9 +92,11 @@ def test_predict_real_seq06_dataset_poses_camera_height(shared_data, tmp_path, f
                          "--out", str(out), "--random_init", "true", "--progress", "false"]) == 2
 
 
-def test_predict_matches_evaluate_on_synthetic_world(synth_root, tmp_path, flow_ckpt):
+@pytest.mark.parametrize("polish", [False, True])
+def test_predict_matches_evaluate_on_synthetic_world(synth_root, tmp_path, flow_ckpt, polish):
     """predict's flow for each pair = monoflow-evaluate's saved prediction (protocol full) for the same net on
-    the same points (the pair's clouds written as a FlowNet3D split)."""
+    the same points (the pair's clouds written as a FlowNet3D split); with ``rigid_polish``, the same as the
+    '+ rigid polish' row."""
     from evaluation.cli import main as evaluate_main
     from evaluation.predictions import read_predictions
     from core.axes import FORMAT_AXES
@@ -104,7 +106,8 @@ def test_predict_matches_evaluate_on_synthetic_world(synth_root, tmp_path, flow_
     out = tmp_path / "pred"
     cfg = PredictConfig(input=str(synth_root / "sequences" / "00"), depth="gt", pose="gt",
                         scale=ScaleConfig(mode="none"), size="native", max_frames=4, block_size=2,
-                        checkpoint=str(flow_ckpt), out=str(out), flow_batch=2, progress=False, sample_seed=5)
+                        checkpoint=str(flow_ckpt), out=str(out), flow_batch=2, progress=False, sample_seed=5,
+                        rigid_polish=polish)
     summary = run_predict(cfg)
     assert summary.pairs == 3 and summary.h5_path.is_file() and not summary.warnings
     split = tmp_path / "split"
@@ -121,8 +124,13 @@ def test_predict_matches_evaluate_on_synthetic_world(synth_root, tmp_path, flow_
     ev = tmp_path / "eval"
     assert evaluate_main(["run", "--split", str(split), "--checkpoint", str(flow_ckpt), "--baselines", "",
                           "--protocol", "full", "--seeds", "5", "--save-predictions", "--out", str(ev),
-                          "--no-progress"]) == 0
-    preds = read_predictions(next(ev.glob("predictions-*.h5")))
+                          "--no-progress", *(["--rigid-polish"] if polish else [])]) == 0
+    files = sorted(ev.glob("predictions-*.h5"), key=lambda f: len(f.name))
+    assert len(files) == (2 if polish else 1)
+    preds = read_predictions(files[-1])  # the polished row's name is the longer one
+    if polish:  # the polish changed something, so matching its row is not matching the net's
+        plain = {p.name: p.pred_flow for p in read_predictions(files[0])}
+        assert any(not np.allclose(p.pred_flow, plain[p.name], atol=1e-4) for p in preds)
     assert sorted(p.name for p in preds) == sorted(flows)
     for p in preds:
         assert p.pred_flow.shape == flows[p.name].shape
