@@ -126,9 +126,6 @@ class RefineConfig(LoopConfig, ChamferConfig):
     truncate: the Chamfer truncation, metres; 1 m here against NSFP's 2 m, because the flow starts near
         its target: a point more than 1 m from every pc2 point after the net's flow is more likely
         unmatched than wrong.
-    hold_inliers: (``"rigid-mlp"``) the points whose given flow agrees with its rigid fit (residual below
-        ``rigid_scale``) keep their given flow: only what the rigid motion does not explain is refined. For a start whose static points are already registered (the rigid
-        polish, :func:`refine_preset`), where the MLP's Chamfer pull only moves them off.
 
     Defaults (fourth round, docs/learned-flow.md), chosen on the dev world, the default-configuration
     test worlds t21 / t22 and seed 1's own and shifted splits — never the demo's split — starting from the
@@ -150,7 +147,6 @@ class RefineConfig(LoopConfig, ChamferConfig):
     rigid_lr: float = 1e-2
     layers: int = 4
     hidden: int = 32
-    hold_inliers: bool = False
 
     def validate(self) -> "RefineConfig":
         LoopConfig.validate(self)
@@ -161,6 +157,4 @@ class RefineConfig(LoopConfig, ChamferConfig):
             raise ConfigError("laplacian_weight and rigid_weight must be >= 0 and rigid_scale > 0")
         if self.laplacian_k < 1:
             raise ConfigError(f"laplacian_k must be >= 1, got {self.laplacian_k}")
-        if self.hold_inliers and self.parametrisation != "rigid-mlp":
-            raise ConfigError(f"hold_inliers needs parametrisation 'rigid-mlp', got {self.parametrisation!r}")
         return self

@@ -55,9 +55,7 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
             return f0 + mlp(p1), rigid0[None]
     else:  # "rigid-mlp": ego-motion (optimised) + the init's non-rigid part + an MLP residual
         resid0 = f0 - rigid0[None]
-        w0 = inlier_weights(resid0, cfg.rigid_scale)
-        resid0 = resid0 * (1 - w0).unsqueeze(-1)  # keep only outliers' part
-        held = (w0 > 0.5).to(f0.dtype).unsqueeze(-1) if cfg.hold_inliers else 0.0  # residual below rigid_scale
+        resid0 = resid0 * (1 - inlier_weights(resid0, cfg.rigid_scale)).unsqueeze(-1)  # keep only outliers' part
         omega = torch.zeros(3, device=dev, requires_grad=True)
         dt = torch.zeros(3, device=dev, requires_grad=True)
         mlp = FlowMLP(cfg.layers, cfg.hidden, seed=cfg.seed, zero_output=True).to(dev)
@@ -66,7 +64,7 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
         def flows() -> tuple[Tensor, Tensor]:
             rot = so3_exp(omega) @ rot0
             ego = (pts @ rot.T + (t0 + dt) - pts)[None]
-            return held * f0 + (1 - held) * (ego + resid0 + mlp(p1)), ego
+            return ego + resid0 + mlp(p1), ego
 
     def step() -> tuple[Tensor, Tensor]:
         flow, rigid = flows()
