@@ -120,10 +120,14 @@ class NetMethod:
 
 def refined(method: FlowMethod, config: Any = None) -> FlowMethod:
     """``method`` followed by label-free test-time refinement (:class:`evaluation.optimise.RefinedMethod`),
-    named ``"<method name> + refinement"``: a separate row, the method's own row is left as it is."""
+    named ``"<method name> + refinement"``: a separate row, the method's own row is left as it is. Without
+    ``config``, a method whose ego-motion is already registered (``registered_ego``, the rigid polish) is
+    refined with :meth:`RefineConfig.after_registration`, any other with the defaults."""
     from evaluation.optimise import RefineConfig, RefinedMethod
 
-    return RefinedMethod(method, config or RefineConfig())
+    if config is None:
+        config = RefineConfig.after_registration() if getattr(method, "registered_ego", False) else RefineConfig()
+    return RefinedMethod(method, config)
 
 
 # ---------------------------------------------------------------------------------------------- registry

@@ -168,6 +168,7 @@ class RigidPolished(MethodWrapper):
 
     suffix = "rigid polish"
     config_type = RigidPolishConfig
+    registered_ego = True  # a refinement after it holds this ego-motion (RefineConfig.after_registration)
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         flow = self.inner(pc1, pc2, color1, color2)

@@ -285,7 +285,7 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     """``--view-prune --rigid-polish --refine``: each wrapper starts from the row before, each its own row."""
     from evaluation.cli import _stacked
     from evaluation.rigid_polish import RigidPolished
-    from evaluation.optimise import RefinedMethod
+    from evaluation.optimise import RefineConfig, RefinedMethod
     from evaluation.view_prune import ViewPruned
 
     net = make_method("zero")
@@ -295,4 +295,7 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     assert isinstance(rows[1], ViewPruned) and rows[1].inner is net
     assert isinstance(rows[2], RigidPolished) and rows[2].inner is rows[1]
     assert isinstance(rows[3], RefinedMethod) and rows[3].base is rows[2]
+    # after the rigid polish the refinement holds the registered ego-motion; elsewhere it optimises it
+    assert rows[3].config == RefineConfig.after_registration() and rows[3].config.rigid_lr == 0.0
+    assert _stacked(net, ["view-prune", "refine"])[2].config == RefineConfig()
     assert [r.name for r in _stacked(net, ["refine"])] == ["zero", "zero + refinement"]
