@@ -1,7 +1,7 @@
 """Rigid polish: another method's ego-motion and movers' motions sharpened by robust ICP (label-free).
 
 The net's flow gets the camera's motion roughly right but not precisely: on the synthetic worlds' LiDAR
-splits the rigid motion fitted to it is typically 0.3–0.7° and a few tens of centimetres off, which at
+splits the rigid motion fitted to it is typically 0.3–0.7° and 0.1–0.4 m off, which at
 15–30 m range is most of the net's static error (docs/learned-flow.md, fourth round). Registration
 does the opposite: robust ICP from the identity lands in a wrong basin on fast-driving scenes (1.1 m
 static error on the demo's split), but started inside the right basin it is precise. This wrapper,
@@ -30,8 +30,10 @@ usable around any method, combines the two:
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
 (the identity) it lands in the same wrong basin as plain ICP on fast-driving scenes
-(docs/learned-flow.md, fifth round) — the method supplies the basin, registration the precision. Clouds: camera frames of frames 1 and 2 (x right, y down, z forward),
-metres. The row it adds is named ``"<method> + rigid polish"``; the method's own row is unchanged.
+(docs/learned-flow.md, fifth round) — the method supplies the basin, registration the precision.
+Clouds: camera frames of frames 1 and 2 (x right, y down, z forward), metres. The row it adds is named
+``"<method> + rigid polish"``; the method's own row is unchanged. A refinement stacked after it holds the
+registered ego-motion (:meth:`evaluation.optimise.RefineConfig.after_registration`).
 """
 
 from __future__ import annotations
