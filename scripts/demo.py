@@ -2,9 +2,9 @@
 
 synthetic world -> stage one (zarr cache) -> short scene-flow training -> evaluation of the trained net, of
 the net run twice without the points that leave the view (label-free view pruning), of that flow with its
-ego-motion polished by robust ICP started from it, of that followed by label-free test-time refinement,
-and of zero flow, ICP, FGR and NSFP on the synthetic test split, printing the table; then the net against
-ICP on the split of a differently configured world it never saw.
+ego-motion and movers polished by robust ICP started from it, of that followed by label-free test-time
+refinement, and of zero flow, ICP, FGR and NSFP on the synthetic test split, printing the table; then the net
+against ICP and FGR on the split of a differently configured world it never saw.
 
 ``--depth gt`` (default) runs stage one on the world's ground-truth depth and poses; ``--depth learned``
 first trains the SC-SfMLearner depth and pose nets on the world (self-supervised, short CPU budget) and
