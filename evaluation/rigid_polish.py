@@ -45,6 +45,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from evaluation.baselines.base import apply_transform
+from evaluation.baselines.icp import ICPConfig, icp
+from evaluation.view_prune import rigid_fit
 from evaluation.wrapping import MethodWrapper
 
 
@@ -106,22 +109,19 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     ego-motion (and, with ``objects``, its movers' motions) polished against ``pc2`` (M, 3) (module
     docstring); ``T`` maps camera 1 to camera 2 and ``static`` marks the points that took its rigid flow.
     Metres."""
-    from evaluation.baselines.icp import ICPConfig, icp
-    from evaluation.view_prune import rigid_fit
-
     cfg = cfg or RigidPolishConfig()
     p1, p2 = np.asarray(pc1, np.float64), np.asarray(pc2, np.float64)
     f = np.asarray(flow, np.float64)
     R, t = rigid_fit(p1, f, cfg.sigma, cfg.fit_iterations, cfg.mad_factor)
     init = np.eye(4)
     init[:3, :3], init[:3, 3] = R, t
-    agree = _agreeing(np.linalg.norm(p1 + f - (p1 @ R.T + t), axis=1), cfg)
+    agree = _agreeing(np.linalg.norm(p1 + f - apply_transform(init, p1), axis=1), cfg)
     if agree.sum() < cfg.min_points or len(p2) < 6:
         return f.astype(np.float32), init, np.zeros(len(p1), bool)
     icp_cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=cfg.max_distance,
                         max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
-    target = p1 @ T[:3, :3].T + T[:3, 3]
+    target = apply_transform(T, p1)
     dist, _ = cKDTree(p2).query(target)
     static = agree & _agreeing(dist, cfg)
     out = f.copy()
@@ -135,12 +135,10 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
                      cfg: RigidPolishConfig) -> None:
     """Step 5 of the module docstring, in place on ``flow`` (N, 3): each cluster of the non-static points
     registered onto the pc2 points that the static scene moved by ``T`` does not explain."""
-    from evaluation.baselines.icp import ICPConfig, icp
-
     rest = np.flatnonzero(~static)
     if len(rest) < cfg.cluster_min_points or not static.any():
         return
-    gap, _ = cKDTree(p1[static] @ T[:3, :3].T + T[:3, 3]).query(p2)
+    gap, _ = cKDTree(apply_transform(T, p1[static])).query(p2)
     free = p2[gap > cfg.static_scale_min]  # pc2 points the static scene does not explain
     if len(free) < cfg.cluster_min_points:
         return
@@ -157,9 +155,8 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
             continue
         pts = p1[rows]
         start = T.copy()  # the ego-motion plus the cluster's median disagreement with it in the method's flow
-        start[:3, 3] += np.median(pts + flow[rows] - (pts @ T[:3, :3].T + T[:3, 3]), axis=0)
-        Tc = icp(pts, free, icp_cfg, init=start).transform
-        moved = pts @ Tc[:3, :3].T + Tc[:3, 3]
+        start[:3, 3] += np.median(pts + flow[rows] - apply_transform(T, pts), axis=0)
+        moved = apply_transform(icp(pts, free, icp_cfg, init=start).transform, pts)
         dist, _ = free_tree.query(moved)
         if (dist < cfg.static_scale_min).mean() > cfg.cluster_min_fitness:
             flow[rows] = moved - pts
