@@ -148,6 +148,13 @@ class LossWeights:
         points. Needs no labels, only the
         pose stage one used. Meant for caches built with ``--filters.occlusion false``, whose clouds keep
         such points as LiDAR test clouds do (docs/learned-flow.md, third round). False = the paper.
+    static_anchor: weight of the static-flow anchor at every level (a departure; 0 = the paper): the mean
+        length ‖f_o − sf_s‖ (metres) over the frame-t points whose static target p + sf_s lands on the
+        surface frame t+1's depth map sees, i.e. the points the camera's motion alone explains
+        (:mod:`training.losses.static_anchor`; docs/learned-flow.md, sixth round). Needs no labels, only
+        stage one's pose and depth.
+    anchor_tol_m, anchor_tol_rel: a point counts as explained by the camera's motion when its static
+        target's depth is within max(anchor_tol_m metres, anchor_tol_rel × its depth) of the depth map's.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -166,6 +173,9 @@ class LossWeights:
     knn_backend: KnnBackend = "auto"
     pc2_target: Pc2Target = "level"
     view_mask: bool = False
+    static_anchor: float = 0.0
+    anchor_tol_m: float = 0.1
+    anchor_tol_rel: float = 0.02
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -176,6 +186,9 @@ class LossWeights:
             raise ConfigError("alpha must have at least one level factor")
         if any(w < 0 for w in self.beta + self.alpha):
             raise ConfigError(f"loss weights must be non-negative, got beta={self.beta} alpha={self.alpha}")
+        if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
+            raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
+                              f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
         if self.alpha_order not in ALPHA_ORDERS:
             raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
         if self.depth_variant not in DEPTH_VARIANTS:

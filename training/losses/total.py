@@ -2,6 +2,8 @@
 
     L_Un = Σ_k α_k (β1 L^k_Depth + β2 L^k_DS + β3 L^k_Cha + β4 L^k_LR)
 
+plus, where ``LossWeights.static_anchor`` > 0 (a departure), ``α_k · static_anchor · L^k_SA``
+(:mod:`training.losses.static_anchor`).
 Levels are given finest first (2048, 1024, 256, 64 points at the paper's defaults). Every term is a
 per-point mean (see each function), so a level's terms are on the same scale whatever its number of
 points and α alone sets the balance between levels.
@@ -20,6 +22,7 @@ from training.losses.chamfer import chamfer
 from training.losses.depth_consistency import depth_consistency
 from training.losses.dynamic_static import dynamic_static
 from training.losses.laplacian import laplacian
+from training.losses.static_anchor import static_anchor, verified_static
 from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
 
 @dataclass
@@ -56,7 +59,8 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
 
 def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
-    ``laplacian`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``)."""
+    ``laplacian``, ``anchor`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``, the anchor in
+    metres)."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o
@@ -74,6 +78,10 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend)
+    if w.static_anchor > 0:
+        verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
+                                   w.anchor_tol_rel, w.depth_edge_tolerance)
+        out["anchor"] = static_anchor(level.flow_o, level.static_flow, verified)
     return out
 
 
@@ -94,6 +102,8 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
     for k, (level, alpha) in enumerate(zip(levels, alphas)):
         terms = level_terms(level, weights)
         weighted = sum((beta[name] * terms[name] for name in beta if name in terms), level.flow_o.new_zeros(()))
+        if "anchor" in terms:
+            weighted = weighted + weights.static_anchor * terms["anchor"]
         weighted = alpha * weighted
         total = weighted if total is None else total + weighted
         for name, value in terms.items():
