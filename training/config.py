@@ -154,7 +154,8 @@ class LossWeights:
         (:mod:`training.losses.static_anchor`; docs/learned-flow.md, sixth round). Needs no labels, only
         stage one's pose and depth.
     anchor_tol_m, anchor_tol_rel: a point counts as explained by the camera's motion when its static
-        target's depth is within max(anchor_tol_m metres, anchor_tol_rel × its depth) of the depth map's.
+        target lies within max(anchor_tol_m metres, anchor_tol_rel × its depth) of the surface the depth
+        map sees, measured along the viewing ray.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)

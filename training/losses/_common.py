@@ -22,6 +22,12 @@ def check_points(where: str, name: str, t: object, batch: int | None = None, n: 
     return t
 
 
+def smooth_length(sq: Tensor) -> Tensor:
+    """The length ``√(sq + 10⁻⁶) − 10⁻³`` of squared distances ``sq`` (m² → m): within 1 mm of the plain length,
+    zero at zero, and with a finite gradient there (the L1 norms of the depth term and the static anchor)."""
+    return torch.sqrt(sq + 1e-6) - 1e-3
+
+
 def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
     """Mean of ``values`` (B, N) over the points where ``mask`` (B, N) holds, per batch element, then the
     mean over the batch elements that have at least one such point.

@@ -26,7 +26,7 @@ from torch import Tensor
 
 from core.errors import InputError
 from core.geometry import backproject, project
-from training.losses._common import check_points, masked_mean
+from training.losses._common import check_points, masked_mean, smooth_length
 from training.choices import DEPTH_VARIANTS, DepthVariant  # noqa: F401  (re-exported)
 
 # A bilinear sample counts as valid only if (almost) all its weight falls on valid depth pixels.
@@ -177,7 +177,7 @@ def depth_consistency(
     """
     res2, valid = depth_consistency_residuals(points_warped, K, depth2, variant, source_points, eps, edge_tolerance)
     if norm == "l1":  # robust: the residual's length (smoothed at 1 mm so the gradient stays finite at 0)
-        res2 = torch.where(valid, torch.sqrt(res2 + 1e-6) - 1e-3, torch.zeros_like(res2))
+        res2 = torch.where(valid, smooth_length(res2), torch.zeros_like(res2))
     elif norm != "l2":
         raise InputError("depth_consistency", f"norm must be 'l2' or 'l1', got {norm!r}")
     return masked_mean(res2, valid)

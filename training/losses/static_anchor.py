@@ -13,9 +13,10 @@ verified points:
 
     L_SA = mean_{i verified} ‖f_o,i − sf_s,i‖        (metres, a length: robust to the few wrong labels)
 
-Verification is label-free: ``|D̂ − z̄| ≤ max(tol_m, tol_rel · z̄)`` with ``z̄`` the depth of ``p1 + sf_s``
-in camera 2 and ``D̂`` the depth map sampled there (eqs. 7–9, :func:`depth_consistency_residuals`, which
-also drops points leaving the image or straddling a depth edge). A point on an object that moves
+Verification is label-free: ``‖(D̂ − z̄) K⁻¹ [u', v', 1]ᵀ‖ ≤ max(tol_m, tol_rel · z̄)``, the distance along
+the viewing ray between ``p1 + sf_s`` (depth ``z̄`` in camera 2, pixel ``(u', v')``) and the surface the depth
+map ``D̂`` shows there (eqs. 7–10's residual, :func:`depth_consistency_residuals`, which also drops points
+leaving the image or straddling a depth edge). A point on an object that moves
 along its own surface (a long car driving slowly) can pass; most movers change the depth they project to
 and fail. Camera frames, metres.
 """
@@ -25,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from training.losses._common import check_points, masked_mean
+from training.losses._common import check_points, masked_mean, smooth_length
 from training.losses.depth_consistency import depth_consistency_residuals
 
 
@@ -48,5 +49,4 @@ def static_anchor(flow_o: Tensor, static_flow: Tensor, verified: Tensor) -> Tens
     check_points("static_anchor", "flow_o", flow_o)
     B, N, _ = flow_o.shape
     check_points("static_anchor", "static_flow", static_flow, B, N)
-    dist = torch.sqrt(((flow_o - static_flow) ** 2).sum(-1) + 1e-6) - 1e-3
-    return masked_mean(dist, verified)
+    return masked_mean(smooth_length(((flow_o - static_flow) ** 2).sum(-1)), verified)

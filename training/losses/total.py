@@ -4,6 +4,7 @@
 
 plus, where ``LossWeights.static_anchor`` > 0 (a departure), ``α_k · static_anchor · L^k_SA``
 (:mod:`training.losses.static_anchor`).
+
 Levels are given finest first (2048, 1024, 256, 64 points at the paper's defaults). Every term is a
 per-point mean (see each function), so a level's terms are on the same scale whatever its number of
 points and α alone sets the balance between levels.
