@@ -156,6 +156,10 @@ class LossWeights:
     anchor_tol_m, anchor_tol_rel: a point counts as explained by the camera's motion when its static
         target lies within max(anchor_tol_m metres, anchor_tol_rel × its depth) of the surface the depth
         map sees, measured along the viewing ray.
+    ego_motion: weight of the ego-motion term at every level (a departure; 0 = the paper): the mean
+        distance between the flow of the rigid motion the net's ego head fitted and stage one's static
+        flow, over all points (:mod:`training.losses.ego_motion`; docs/learned-flow.md, seventh round).
+        Needs ``model.ego_head``; no labels, only stage one's pose.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -177,6 +181,7 @@ class LossWeights:
     static_anchor: float = 0.0
     anchor_tol_m: float = 0.1
     anchor_tol_rel: float = 0.02
+    ego_motion: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -190,6 +195,8 @@ class LossWeights:
         if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
             raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
                               f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
+        if self.ego_motion < 0:
+            raise ConfigError(f"need ego_motion >= 0, got {self.ego_motion}")
         if self.alpha_order not in ALPHA_ORDERS:
             raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
         if self.depth_variant not in DEPTH_VARIANTS:

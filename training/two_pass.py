@@ -58,6 +58,7 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_tar
                              "(PairDataset(target_draw=True))")
         targets = independent_levels(batch.pc2_target, [int(i.shape[1]) for i in out_o.indices2])
     levels = []
+    rigid = out_o.rigid_flows if len(out_o.rigid_flows) == len(out_o.flows) else [None] * len(out_o.flows)
     for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
         idx1, idx2 = out_o.indices[l], out_o.indices2[0 if pc2_target == "finest" else l]
         pc2 = targets[l] if pc2_target == "independent" else gather(batch.pc2, idx2)
@@ -66,7 +67,8 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_tar
                                   depth2=batch.depth2,
                                   view1=gather(batch.view1, idx1) if view_mask else None,
                                   view2=gather(batch.view2, idx2) if view_mask and pc2_target != "independent"
-                                  else None))
+                                  else None,
+                                  rigid_o=None if rigid[l] is None else rigid[l].float()))
     return levels
 
 

@@ -60,15 +60,32 @@ def test_shapes_and_indices(sampling):
         assert not torch.equal(out.indices[0], torch.arange(128).expand(2, 128))
 
 
-def test_gradients_reach_every_parameter():
+@pytest.mark.parametrize("extra", [{}, {"l0_cost_volume": True}, {"l0_cost_volume": True, "ego_head": True}])
+def test_gradients_reach_every_parameter(extra):
     torch.manual_seed(1)
-    net = HALFlowNet(HALFlowConfig(**SMALL))
+    net = HALFlowNet(HALFlowConfig(**SMALL, **extra))
     pc1, pc2, f1, f2, _ = scene(seed=1)
     out = net(pc1, pc2, f1, f2)
     sum(f.square().mean() for f in out.flows).backward()
     missing = [n for n, p in net.named_parameters() if p.grad is None or not torch.any(p.grad != 0)]
     assert not missing, f"no gradient reaches {missing}"
     assert all(torch.isfinite(p.grad).all() for p in net.parameters())
+
+
+def test_l0_cost_volume_is_a_residual_on_the_papers_l0_flow():
+    """With the L0 refinement's head zeroed the finest flow is exactly the paper's L0 flow (same weights
+    elsewhere): the switch adds a residual stage and changes nothing above it."""
+    torch.manual_seed(2)
+    paper = HALFlowNet(HALFlowConfig(**SMALL)).eval()
+    extended = HALFlowNet(HALFlowConfig(**SMALL, l0_cost_volume=True)).eval()
+    missing, unexpected = extended.load_state_dict(paper.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.split(".")[0] in ("cost0", "refine0", "head0_refine") for k in missing)
+    torch.nn.init.zeros_(extended.head0_refine.linear.weight)
+    torch.nn.init.zeros_(extended.head0_refine.linear.bias)
+    pc1, pc2, f1, f2, _ = scene(seed=2)
+    with torch.no_grad():
+        a, b = paper(pc1, pc2, f1, f2), extended(pc1, pc2, f1, f2)
+    assert all(torch.equal(x, y) for x, y in zip(a.flows, b.flows))
 
 
 def test_overfits_one_pair_with_supervision():

@@ -3,7 +3,8 @@
     L_Un = Σ_k α_k (β1 L^k_Depth + β2 L^k_DS + β3 L^k_Cha + β4 L^k_LR)
 
 plus, where ``LossWeights.static_anchor`` > 0 (a departure), ``α_k · static_anchor · L^k_SA``
-(:mod:`training.losses.static_anchor`).
+(:mod:`training.losses.static_anchor`), and where ``LossWeights.ego_motion`` > 0 (a departure),
+``α_k · ego_motion · L^k_EM`` (:mod:`training.losses.ego_motion`).
 
 Levels are given finest first (2048, 1024, 256, 64 points at the paper's defaults). Every term is a
 per-point mean (see each function), so a level's terms are on the same scale whatever its number of
@@ -22,6 +23,7 @@ from training.losses._common import check_points
 from training.losses.chamfer import chamfer
 from training.losses.depth_consistency import depth_consistency
 from training.losses.dynamic_static import dynamic_static
+from training.losses.ego_motion import ego_motion_term
 from training.losses.laplacian import laplacian
 from training.losses.static_anchor import static_anchor, verified_static
 from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
@@ -38,6 +40,8 @@ class LevelInputs:
     K (B, 3, 3): intrinsics at the depth map's resolution.
     depth2 (B, H, W): D_{t+1}, metres, ≤ 0 where unknown.
     view1 (B, n) / view2 (B, m), bool or None: the points the Chamfer term averages over (``view_mask``).
+    rigid_o (B, n, 3) or None: the flow of the rigid motion the net's ego head fitted in the overall pass
+        (:attr:`~training.model.contract.FlowOutput.rigid_flows`; the ego-motion term needs it).
     """
 
     pc1: Tensor
@@ -49,6 +53,7 @@ class LevelInputs:
     depth2: Tensor
     view1: Tensor | None = None
     view2: Tensor | None = None
+    rigid_o: Tensor | None = None
 
 
 def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
@@ -60,8 +65,8 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
 
 def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
-    ``laplacian``, ``anchor`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``, the anchor in
-    metres)."""
+    ``laplacian``, ``anchor``, ``ego`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``, the
+    anchor and the ego-motion term in metres)."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o
@@ -83,6 +88,10 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
                                    w.anchor_tol_rel, w.depth_edge_tolerance)
         out["anchor"] = static_anchor(level.flow_o, level.static_flow, verified)
+    if w.ego_motion > 0:
+        if level.rigid_o is None:
+            raise ConfigError("loss.ego_motion needs a net that reports its fitted ego-motion (model.ego_head true)")
+        out["ego"] = ego_motion_term(level.rigid_o, level.static_flow)
     return out
 
 
@@ -105,6 +114,8 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
         weighted = sum((beta[name] * terms[name] for name in beta if name in terms), level.flow_o.new_zeros(()))
         if "anchor" in terms:
             weighted = weighted + weights.static_anchor * terms["anchor"]
+        if "ego" in terms:
+            weighted = weighted + weights.ego_motion * terms["ego"]
         weighted = alpha * weighted
         total = weighted if total is None else total + weighted
         for name, value in terms.items():

@@ -64,6 +64,8 @@ class FlowOutput:
     points: (B, n_l, 3) those pc1 points (= pc1 gathered at indices), input frame.
     indices2 / points2: the same for the frame-2 points of each level (for losses against pc2).
     sampling: the sampling decisions of this pass; pass it to another forward to sample the same points.
+    rigid_flows: (B, n_l, 3) per level, the flow ``T̂ p − p`` of the rigid (camera) motion the net fitted
+        at those points, for nets that fit one (HALFlowNet with ``ego_head``); empty otherwise.
     """
 
     flows: list[Tensor]
@@ -72,6 +74,7 @@ class FlowOutput:
     indices2: list[Tensor] = field(default_factory=list)
     points2: list[Tensor] = field(default_factory=list)
     sampling: Any = None
+    rigid_flows: list[Tensor] = field(default_factory=list)
 
 
 @runtime_checkable

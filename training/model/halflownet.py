@@ -36,7 +36,8 @@ from training.model.halflownet_config import HALFlowConfig
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
-from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
+from training.pointops import (estimate_normals, farthest_point_sample, first_n_sample, gather_points,
+                               three_nn_interpolate)
 
 @dataclass
 class _Pyramid:
@@ -98,6 +99,10 @@ class HALFlowNet(nn.Module):
         self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), bn, kb)
         self.fc0 = SharedMLP(self.fp0.out_channels, w(128), bn)
         self.head0 = FlowHead(self.fc0.out_channels)
+        if cfg.l0_cost_volume:  # a fifth warping level at L0 (a departure, HALFlowConfig.l0_cost_volume)
+            self.cost0 = AttentiveCostVolume(c0, w(64, 32, 32), w(64, 32), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
+            self.refine0 = FlowRefiner(c0, self.cost0.out_channels, self.fc0.out_channels, w(128, 64, 64), bn)
+            self.head0_refine = FlowHead(self.refine0.out_channels)
         self.set_eval_norm_stats(cfg.eval_norm_stats)
 
     def set_eval_norm_stats(self, mode: str) -> None:
@@ -111,13 +116,19 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor) -> Tensor:
-        """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on."""
+    def _ego(self, xyz: Tensor, flow: Tensor, normals: Tensor | None, idx: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, and the
+        fitted motion's flow ``T̂ p − p`` (None without the head); ``normals`` are the input pc1's
+        (``ego_fit = "plane"``, else None), ``idx`` the level's points in it."""
         cfg = self.config
         if not cfg.ego_head:
-            return flow
-        out, *_ = rigid_plus_residual(xyz.float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor)
-        return out.to(flow.dtype)
+            return flow, None
+        level_normals = None if normals is None else gather_points(normals, idx).float()
+        x = xyz.float()
+        out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
+                                           level_normals, cfg.ego_tangent_weight)
+        rigid = x @ R.transpose(1, 2) + t[:, None] - x
+        return out.to(flow.dtype), rigid.to(flow.dtype)
 
     def _down(
         self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
@@ -216,6 +227,9 @@ class HALFlowNet(nn.Module):
         cfg = self.config
         centre = pc1.mean(dim=1, keepdim=True) if cfg.center_input else pc1.new_zeros(pc1.shape[0], 1, 3)
         x1, x2 = pc1 - centre, pc2 - centre
+        normals = None
+        if cfg.ego_head and cfg.ego_fit == "plane":
+            normals = estimate_normals(x1, cfg.ego_normal_k, backend=cfg.knn_backend)
 
         if pc1.shape[1] == pc2.shape[1]:  # one pass over both clouds: shared weights, half the loops
             given = [None if a is None else torch.cat([a, b]) for a, b in zip(given1, given2)]
@@ -249,8 +263,8 @@ class HALFlowNet(nn.Module):
         coarse = self.head3_coarse(up)
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow = self._ego(xyz1_3, coarse + self.head3(hidden))
-        flows = [flow]
+        flow, rigid = self._ego(xyz1_3, coarse + self.head3(hidden), normals, p1.idx[3])
+        flows, rigids = [flow], [rigid]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
         for lvl, upconv, cv, refiner, head in ((2, self.up2, self.cost2, self.refine2, self.head2),
@@ -260,13 +274,21 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow = self._ego(xyz, coarse + head(hidden))
+            flow, rigid = self._ego(xyz, coarse + head(hidden), normals, p1.idx[lvl])
             flows.insert(0, flow)
+            rigids.insert(0, rigid)
 
         # L0: propagate L1's refinement features, residual on the interpolated L1 flow.
         hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
         coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
-        flows.insert(0, self._ego(p1.xyz[0], coarse + self.head0(hidden)))
+        flow = coarse + self.head0(hidden)
+        if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
+            flow, _ = self._ego(p1.xyz[0], flow, normals, p1.idx[0])
+            cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
+            flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
+        flow, rigid = self._ego(p1.xyz[0], flow, normals, p1.idx[0])
+        flows.insert(0, flow)
+        rigids.insert(0, rigid)
 
         idx1, idx2 = p1.idx[:4], p2.idx[:4]
         return FlowOutput(
@@ -276,6 +298,7 @@ class HALFlowNet(nn.Module):
             indices2=idx2,
             points2=[gather_points(pc2, i) for i in idx2],
             sampling=Sampling(pc1=p1.samples, pc2=p2.samples),
+            rigid_flows=[] if rigids[0] is None else rigids,
         )
 
 

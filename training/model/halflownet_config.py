@@ -30,6 +30,10 @@ class HALFlowConfig:
     set_conv_pooling: "max" (HALFlowNet) | "attentive".
     batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
     center_input: shift both clouds by pc1's mean before the net (the released port does).
+    l0_cost_volume: add a warping refinement at L0 as at L1–L3 — warp L0's flow (through the ego head when
+        on), a cost volume against frame 2's L0 points (refine_k / cost_k_pc1 neighbours), a residual flow.
+        HALFlowNet matches last at L1; at small inputs (the demo's 2048 points: L1 = 256) that is coarser
+        than the L0 points that are scored. False = the paper's form (L0 by feature propagation alone).
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -39,6 +43,12 @@ class HALFlowConfig:
         residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
         standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
     ego_iterations: re-weighting rounds of the robust rigid fit.
+    ego_fit: "point" — each round fits the rigid motion to the flow's targets point to point (Kabsch);
+        "plane" — then refines it counting each target's offset across frame 1's surface fully and along
+        it with weight ego_tangent_weight (a Chamfer-trained flow is ambiguous along a surface;
+        :func:`~training.model.ego_motion.plane_weighted_refit`).
+    ego_tangent_weight: λ in (0, 1] of the "plane" fit (1 = the point fit).
+    ego_normal_k: neighbours in the input pc1 of the PCA normals the "plane" fit uses.
     eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
         training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
         so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
@@ -59,10 +69,14 @@ class HALFlowConfig:
     set_conv_pooling: str = "max"
     batch_norm: bool = True
     center_input: bool = True
+    l0_cost_volume: bool = False
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
     ego_iterations: int = 4
+    ego_fit: str = "point"
+    ego_tangent_weight: float = 0.1
+    ego_normal_k: int = 16
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
@@ -91,6 +105,11 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
+        if self.ego_fit not in ("point", "plane"):
+            raise ConfigError(f"ego_fit must be 'point' or 'plane', got {self.ego_fit!r}")
+        if not 0 < self.ego_tangent_weight <= 1 or self.ego_normal_k < 3:
+            raise ConfigError(f"need 0 < ego_tangent_weight <= 1 and ego_normal_k >= 3, got {self.ego_tangent_weight}, "
+                              f"{self.ego_normal_k}")
         if self.eval_norm_stats not in ("running", "input"):
             raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
         if self.set_conv_pooling not in ("max", "attentive"):
