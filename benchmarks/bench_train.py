@@ -17,6 +17,7 @@ repository root::
     .venv/bin/python benchmarks/bench_train.py                      # both sizes, CPU
     .venv/bin/python benchmarks/bench_train.py --size demo --steps 8 --workers 2 --threads 2
     .venv/bin/python benchmarks/bench_train.py --size paper --device cuda --steps 20
+    .venv/bin/python benchmarks/bench_train.py --size demo --model ego_head=true l0_cost_volume=true  # the demo preset's net
 
 Timings on a shared machine are noisy: load average and thread counts are printed with the table.
 """
@@ -73,7 +74,15 @@ def _config(cache: Path, run_dir: Path, size: str, args):
                        threads=args.threads, amp=args.amp, log_every=10**6, val_every=10**6, ckpt_every=10**6,
                        progress=False, data=DataConfig(n_points=s["n_points"], workers=args.workers, val_fraction=0.0),
                        optim=OptimConfig(batch_size=s["batch"]),
-                       model=HALFlowConfig(n_points=s["n_points"], level_points=levels, width_scale=s["width_scale"]))
+                       model=HALFlowConfig(n_points=s["n_points"], level_points=levels, width_scale=s["width_scale"],
+                                           **_model_overrides(args.model)))
+
+
+def _model_overrides(items: list[str]) -> dict:
+    """``["ego_head=true", "ego_sigma=0.2"]`` → HALFlowConfig fields (the learning curve's value parsing)."""
+    from benchmarks.learning_curve import _coerce
+
+    return {key: _coerce(value) for key, _, value in (item.partition("=") for item in items)}
 
 
 def run_size(size: str, args) -> dict:
@@ -143,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--amp", action="store_true", help="bf16 autocast (CUDA only)")
     p.add_argument("--workdir", default=str(REPO / "cache" / "bench_train"))
     p.add_argument("--json", action="store_true", help="print one JSON line per size instead of the table")
+    p.add_argument("--model", nargs="*", default=[], help="HALFlowConfig fields key=value (e.g. l0_cost_volume=true)")
     args = p.parse_args(argv)
     sys.path.insert(0, str(REPO))
     if args.size != "both":
@@ -154,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for size in ("demo", "paper"):  # one process each: ru_maxrss is a per-process peak
         cmd = [sys.executable, __file__, "--size", size, "--json", "--steps", str(args.steps), "--workers",
-               str(args.workers), "--threads", str(args.threads), "--device", args.device, "--workdir", args.workdir]
+               str(args.workers), "--threads", str(args.threads), "--device", args.device, "--workdir", args.workdir,
+               "--model", *args.model]
         if args.amp:
             cmd.append("--amp")
         out = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=True)

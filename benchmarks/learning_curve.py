@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=0)
     p.add_argument("--variants", default="as-trained",
                    help="comma list of test-time settings to score each snapshot under: 'as-trained', or '+'-joined "
-                        "switches 'ego' (model.ego_head on), 'plane' / 'point' (model.ego_fit), 'input' / 'running' "
+                        "switches 'ego' (model.ego_head on), 'plane' / 'point' (model.ego_fit), 'planar' / 'sixdof' "
+                        "(model.ego_planar), 'input' / 'running' "
                         "(model.eval_norm_stats), "
                         "'prune' (two-pass view pruning, evaluation/view_prune.py), 'polish' (rigid polish, "
                         "evaluation/rigid_polish.py; after 'prune' when both are given)")
@@ -125,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
             for fit in ("plane", "point"):
                 if fit in variant.split("+"):
                     net.net.config.ego_fit = fit
+            for motion, planar in (("planar", True), ("sixdof", False)):
+                if motion in variant.split("+"):
+                    net.net.config.ego_planar = planar
             if "input" in variant.split("+"):
                 net.net.set_eval_norm_stats("input")
             if "running" in variant.split("+"):

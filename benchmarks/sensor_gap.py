@@ -9,7 +9,9 @@ Scores checkpoints under the ``fps`` protocol (the net's point counts) on
 
 with ICP and FGR on the same points, and reports for every split the rigid ego-motion implied by the net's
 flow on static points (Kabsch fit; camera-1 → camera-2 frame, metres): its translation length against the
-true one and the error of the translation and rotation. Used for docs/learned-flow.md ("Second round")::
+true one, the error of the translation and rotation, and their signed means per axis (x right, y down,
+z forward; rotation as Euler angles about x = pitch, y = yaw, z = roll), which show a bias where a plain
+mean error cannot. Used for docs/learned-flow.md ("Second round", "Seventh round")::
 
     python -m benchmarks.sensor_gap --checkpoint runs/curve/step_000500.pt,runs/curve/step_001000.pt \\
         --cache w/cache/world/<hash> --test-cache w/cache06/world/<hash> --split own=w/world/sceneflow/flownet3d
@@ -40,10 +42,12 @@ def cache_samples(reader, indices: list[int] | None, tag: str) -> list:
 
 def ego_errors(method, split, cfg) -> dict[str, float]:
     """Mean |t_true|, |t_net|, translation error (m) and rotation error (degrees) of the rigid motion fitted
-    to the net's flow and to the true flow on each scene's static points."""
+    to the net's flow and to the true flow on each scene's static points, and the signed mean error per
+    axis: ``dt_x``, ``dt_y``, ``dt_z`` (m, net − true, camera-1 → camera-2 frame) and ``dr_pitch``,
+    ``dr_yaw``, ``dr_roll`` (degrees, Euler angles of ``R_trueᵀ R_net`` about x, y, z)."""
     import torch
 
-    from core.geometry import rotation_angle
+    from core.geometry import matrix_to_euler, rotation_angle
     from evaluation.protocols import prepare_scene
     from training.model.ego_motion import weighted_rigid_fit
 
@@ -62,9 +66,11 @@ def ego_errors(method, split, cfg) -> dict[str, float]:
         Rg, tg = fit(scene.pc1[static], sample.flow[scene.index1][static])
         Rn, tn = fit(scene.pc1[static], flow[static])
         rows.append([np.linalg.norm(tg), np.linalg.norm(tn), np.linalg.norm(tn - tg),
-                     np.degrees(float(rotation_angle(Rg.T @ Rn)))])
-    mean = np.mean(rows, axis=0) if rows else np.full(4, np.nan)
-    return dict(zip(("t_true", "t_net", "t_err", "rot_err_deg"), map(float, mean)))
+                     np.degrees(float(rotation_angle(Rg.T @ Rn))), *(tn - tg),
+                     *np.degrees(matrix_to_euler(Rg.T @ Rn))])
+    keys = ("t_true", "t_net", "t_err", "rot_err_deg", "dt_x", "dt_y", "dt_z", "dr_pitch", "dr_yaw", "dr_roll")
+    mean = np.mean(rows, axis=0) if rows else np.full(len(keys), np.nan)
+    return dict(zip(keys, map(float, mean)))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,7 +110,9 @@ def main(argv: list[str] | None = None) -> int:
         for net in nets:
             e = ego_errors(net, split, cfg)
             print(f"{name:10s} {net.name:40s} ego-motion: |t| true {e['t_true']:.2f} m, net {e['t_net']:.2f} m, "
-                  f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg", flush=True)
+                  f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg; mean signed error "
+                  f"t ({e['dt_x']:+.3f}, {e['dt_y']:+.3f}, {e['dt_z']:+.3f}) m, pitch {e['dr_pitch']:+.3f}, "
+                  f"yaw {e['dr_yaw']:+.3f}, roll {e['dr_roll']:+.3f} deg", flush=True)
     return 0
 
 

@@ -151,3 +151,28 @@ def test_plane_head_in_the_net_is_differentiable_and_checked():
     for bad in ({"ego_fit": "planes"}, {"ego_tangent_weight": 0.0}, {"ego_tangent_weight": 1.5}, {"ego_normal_k": 2}):
         with pytest.raises(Exception, match="ego_"):
             HALFlowConfig(**bad)
+
+
+def test_planar_fit_is_exact_on_a_turn_and_drops_pitch_and_vertical_motion():
+    from training.model.ego_motion import weighted_planar_fit
+
+    p, _, gt, T = _street()  # a 1° turn about y and 1 m forward: a planar motion
+    w = torch.ones(p.shape[:2], dtype=p.dtype)
+    R, t = weighted_planar_fit(p, p + gt, w)
+    assert torch.allclose(R, T[None, :3, :3], atol=1e-9) and torch.allclose(t, T[None, :3, 3], atol=1e-8)
+    # flows that add a 0.3 m vertical drift and a 0.5° pitch: the planar fit keeps the turn and the forward
+    # motion, its vertical flow is exactly zero
+    T2 = torch.tensor(pose_vec_to_mat(np.array([0.0, 0.3, -1.0, 0.0087, 0.0175, 0.0])))
+    tilted = p @ T2[:3, :3].T + T2[:3, 3] - p
+    R, t = weighted_planar_fit(p, p + tilted, w)
+    flow = p @ R.transpose(1, 2) + t[:, None] - p
+    assert flow[..., 1].abs().max() == 0
+    assert abs(t[0, 1].item()) == 0 and abs(t[0, 2].item() + 1.0) < 0.05
+    yaw = torch.atan2(R[0, 0, 2], R[0, 0, 0]).item()
+    assert abs(yaw - 0.0175) < 0.002
+    out, *_ = rigid_plus_residual(p, gt, sigma=0.1, planar=True)
+    assert (out - gt).norm(dim=-1).max() < 1e-6
+    from training.model.halflownet import HALFlowConfig
+
+    with pytest.raises(Exception, match="ego_planar"):
+        HALFlowConfig(ego_planar=True, ego_fit="plane")

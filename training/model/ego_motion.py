@@ -56,6 +56,30 @@ def weighted_rigid_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tenso
     return R.to(src.dtype), t.to(src.dtype)
 
 
+def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
+    """Like :func:`weighted_rigid_fit`, restricted to a ground vehicle's motion seen by a level camera: a
+    turn by θ about the camera's y axis (down) and a translation in its x–z plane (``t_y = 0``).
+
+    Minimises ``Σ w_i ‖R src_i + t − dst_i‖²`` over that family in closed form: with centred x–z
+    coordinates ``s``, ``d``, ``θ = atan2(Σ w (s_z d_x − s_x d_z), Σ w (s_x d_x + s_z d_z))``; the y
+    components only enter through the constant ``Σ w (s_y − d_y)²``. Float64; differentiable.
+    """
+    s, d, w = src.double(), dst.double(), weights.double().clamp_min(0)
+    w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)
+    mu_s = (w[..., None] * s).sum(1)
+    mu_d = (w[..., None] * d).sum(1)
+    cs, cd = s - mu_s[:, None], d - mu_d[:, None]
+    a = (w * (cs[..., 0] * cd[..., 0] + cs[..., 2] * cd[..., 2])).sum(1)
+    b = (w * (cs[..., 2] * cd[..., 0] - cs[..., 0] * cd[..., 2])).sum(1)
+    theta = torch.atan2(b, a + 1e-12)
+    c, sn = torch.cos(theta), torch.sin(theta)
+    zero, one = torch.zeros_like(c), torch.ones_like(c)
+    R = torch.stack([c, zero, sn, zero, one, zero, -sn, zero, c], -1).reshape(-1, 3, 3)
+    t = mu_d - (R @ mu_s[..., None])[..., 0]
+    t = t * torch.tensor([1.0, 0.0, 1.0], dtype=t.dtype, device=t.device)
+    return R.to(src.dtype), t.to(src.dtype)
+
+
 def _skew(v: Tensor) -> Tensor:
     """(..., 3) vectors -> (..., 3, 3) cross-product matrices ``[v]×`` (``[v]× u = v × u``)."""
     z = torch.zeros_like(v[..., 0])
@@ -97,7 +121,7 @@ def plane_weighted_refit(src: Tensor, dst: Tensor, weights: Tensor, normals: Ten
 
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, normals: Tensor | None = None,
-                        tangent_weight: float = 0.1) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        tangent_weight: float = 0.1, planar: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -109,13 +133,15 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     re-weighting rounds. With ``normals`` (B, N, 3) of frame 1's surface at ``points`` each round's fit is
     the plane-weighted one (:func:`plane_weighted_refit`, ``tangent_weight`` its λ); the re-weighting and
     the gate still use the full residual, so a mover that slides along its own surface stays a mover.
+    ``planar``: the motion is a turn about y and a translation in x–z (:func:`weighted_planar_fit`;
+    not combined with ``normals``).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
     s2 = torch.full((points.shape[0], 1), sigma * sigma, dtype=points.dtype, device=points.device)
     for _ in range(max(1, iterations)):
-        R, t = weighted_rigid_fit(points, target, weights)
-        if normals is not None:
+        R, t = (weighted_planar_fit if planar else weighted_rigid_fit)(points, target, weights)
+        if normals is not None and not planar:
             R, t = plane_weighted_refit(points, target, weights, normals, R, t, tangent_weight)
         with torch.no_grad():
             moved = points @ R.transpose(1, 2) + t[:, None]

@@ -126,7 +126,7 @@ class HALFlowNet(nn.Module):
         level_normals = None if normals is None else gather_points(normals, idx).float()
         x = xyz.float()
         out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
-                                           level_normals, cfg.ego_tangent_weight)
+                                           level_normals, cfg.ego_tangent_weight, cfg.ego_planar)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         return out.to(flow.dtype), rigid.to(flow.dtype)
 

@@ -49,6 +49,10 @@ class HALFlowConfig:
         :func:`~training.model.ego_motion.plane_weighted_refit`).
     ego_tangent_weight: λ in (0, 1] of the "plane" fit (1 = the point fit).
     ego_normal_k: neighbours in the input pc1 of the PCA normals the "plane" fit uses.
+    ego_planar: restrict the fitted camera motion to a ground vehicle's with a level camera — a turn about
+        the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
+        degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
+        thin slab of elevations, the 6-DoF fit trades pitch against vertical translation.
     eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
         training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
         so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
@@ -77,6 +81,7 @@ class HALFlowConfig:
     ego_fit: str = "point"
     ego_tangent_weight: float = 0.1
     ego_normal_k: int = 16
+    ego_planar: bool = False
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
@@ -110,6 +115,8 @@ class HALFlowConfig:
         if not 0 < self.ego_tangent_weight <= 1 or self.ego_normal_k < 3:
             raise ConfigError(f"need 0 < ego_tangent_weight <= 1 and ego_normal_k >= 3, got {self.ego_tangent_weight}, "
                               f"{self.ego_normal_k}")
+        if self.ego_planar and self.ego_fit == "plane":
+            raise ConfigError("ego_planar and ego_fit 'plane' do not combine (the plane refit is for the 6-DoF motion)")
         if self.eval_norm_stats not in ("running", "input"):
             raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
         if self.set_conv_pooling not in ("max", "attentive"):

@@ -1,0 +1,45 @@
+"""benchmarks/sensor_gap.py's ego-motion check: the rigid motion of a method's static flow against the truth,
+with its signed per-axis errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.sensor_gap import ego_errors
+from core.geometry import pose_vec_to_mat
+from evaluation.protocols import ProtocolConfig
+from evaluation.sample import SceneFlowSample
+
+
+def _split(n: int = 600):
+    rng = np.random.default_rng(0)
+    pc1 = (rng.random((n, 3)) * [20.0, 3.0, 30.0] + [-10.0, -2.0, 5.0]).astype(np.float32)
+    T = pose_vec_to_mat(np.array([0.05, 0.0, -1.2, 0.0, 0.01, 0.0]))
+    flow = (pc1 @ T[:3, :3].T + T[:3, 3] - pc1).astype(np.float32)
+    moving = np.zeros(n, bool)
+    moving[:40] = True
+    flow[:40] += 3.0  # movers: not part of the fit
+    return [SceneFlowSample("a", pc1, pc1 + flow, flow, moving=moving)], T
+
+
+def test_truth_has_no_error_and_a_known_bias_shows_on_its_axis():
+    split, T = _split()
+    cfg = ProtocolConfig(protocol="fps", n_points=512, n_score=128, seeds=(0,), warmup=False).validate()
+
+    def exact(pc1, pc2, *_):
+        rows = {tuple(p): i for i, p in enumerate(map(tuple, split[0].pc1))}
+        return split[0].flow[[rows[tuple(p)] for p in map(tuple, pc1)]]
+
+    e = ego_errors(exact, split, cfg)
+    assert e["t_err"] < 1e-4 and e["rot_err_deg"] < 1e-3
+    assert e["t_true"] == pytest.approx(np.linalg.norm(T[:3, 3]), abs=1e-4)
+
+    def short_and_down(pc1, pc2, *_):  # every point 0.3 m short forward and 0.1 m down
+        return exact(pc1, pc2) + np.array([0.0, 0.1, 0.3], dtype=np.float32)
+
+    e = ego_errors(short_and_down, split, cfg)
+    assert e["dt_x"] == pytest.approx(0.0, abs=1e-4)
+    assert e["dt_y"] == pytest.approx(0.1, abs=1e-4) and e["dt_z"] == pytest.approx(0.3, abs=1e-4)
+    assert e["t_net"] == pytest.approx(np.linalg.norm(T[:3, 3] + [0.0, 0.1, 0.3]), abs=1e-3)
+    assert max(abs(e[k]) for k in ("dr_pitch", "dr_yaw", "dr_roll")) < 1e-3
