@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=0)
     p.add_argument("--variants", default="as-trained",
                    help="comma list of test-time settings to score each snapshot under: 'as-trained', or '+'-joined "
-                        "switches 'ego' (model.ego_head on), 'plane' / 'point' (model.ego_fit), 'planar' / 'sixdof' "
+                        "switches 'ego' (model.ego_head on), 'planar' / 'sixdof' "
                         "(model.ego_planar), 'input' / 'running' "
                         "(model.eval_norm_stats), "
                         "'prune' (two-pass view pruning, evaluation/view_prune.py), 'polish' (rigid polish, "
@@ -123,9 +123,6 @@ def main(argv: list[str] | None = None) -> int:
             net = NetMethod(snap, name=variant)
             if "ego" in variant.split("+"):
                 net.net.config.ego_head = True
-            for fit in ("plane", "point"):
-                if fit in variant.split("+"):
-                    net.net.config.ego_fit = fit
             for motion, planar in (("planar", True), ("sixdof", False)):
                 if motion in variant.split("+"):
                     net.net.config.ego_planar = planar

@@ -162,24 +162,3 @@ def three_nn_interpolate(
     """PointNet++'s feature propagation weights: :func:`knn_interpolate` with ``k = 3``."""
     return knn_interpolate(query_xyz, ref_xyz, ref_feat, 3, eps, backend)
 
-
-def estimate_normals(xyz: Tensor, k: int = 16, backend: KnnBackend = "auto") -> Tensor:
-    """Unit surface normals (B, N, 3) of a cloud (B, N, 3) by PCA of each point's ``k`` nearest
-    neighbours (the point included): the eigenvector of the smallest eigenvalue of their covariance.
-
-    The sign is arbitrary (what uses them here, ``n nᵀ``, does not see it); no gradient; computed in
-    float64. ``k`` is capped at N; with fewer than 3 points every normal is +z (camera forward).
-    """
-    _check_points("estimate_normals", xyz)
-    B, N, _ = xyz.shape
-    if N < 3:
-        out = torch.zeros_like(xyz)
-        out[..., 2] = 1.0
-        return out
-    with torch.no_grad():
-        _, idx = knn(xyz, xyz, min(int(k), N), backend=backend)
-        nb = group(xyz.double(), idx)  # (B, N, k, 3)
-        centred = nb - nb.mean(dim=2, keepdim=True)
-        cov = centred.transpose(2, 3) @ centred  # (B, N, 3, 3)
-        _, vecs = torch.linalg.eigh(cov)
-        return vecs[..., 0].to(xyz.dtype)

@@ -145,15 +145,3 @@ def test_triton_fps_matches_the_loop_on_a_gpu():
         assert all(len(set(row.tolist())) == n for row in fast.cpu())  # distinct indices
         torch.testing.assert_close(fast, farthest_point_sample_loop(xyz, n), rtol=0, atol=0)
 
-
-def test_estimate_normals_of_planes():
-    from training.pointops import estimate_normals
-
-    g = torch.Generator().manual_seed(0)
-    xy = torch.rand(1, 300, 2, generator=g) * 10
-    plane = torch.cat([xy, torch.full((1, 300, 1), 5.0)], -1)  # z = 5: normal ±z
-    n = estimate_normals(plane, k=12)
-    assert torch.allclose(n[..., 2].abs(), torch.ones(1, 300), atol=1e-5)
-    tilted = plane @ torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, -0.8, 0.6]]).T
-    n = estimate_normals(tilted, k=12)
-    assert torch.allclose((n @ torch.tensor([0.0, 0.8, 0.6])).abs(), torch.ones(1, 300), atol=1e-4)

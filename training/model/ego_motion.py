@@ -18,14 +18,8 @@ rather than along the true motion. This head makes the constraint explicit and k
 The weights and the gate are computed without gradient; ``T`` is differentiable in the flow (through
 the SVD), so every static point's flow still receives the loss's gradient through the fit.
 
-**Plane-weighted fit** (``normals`` given, ``HALFlowConfig.ego_fit = "plane"``): a flow learnt by matching
-points to the nearest samples of the other cloud (eq. 13's Chamfer) is precise across a surface and
-ambiguous along it — on ring-sampled LiDAR clouds a point slides along its surface towards the ring the
-sensor sees again, which shortens the fitted translation. After each Kabsch fit, a few Gauss–Newton steps
-minimise ``Σ w_i r_iᵀ (n_i n_iᵀ + λ (I − n_i n_iᵀ)) r_i`` instead (``r_i = R p_i + t − (p_i + f_i)``, ``n_i`` the
-surface normal of frame 1 at ``p_i`` turned by ``R``, ``λ`` = ``tangent_weight``): the component of a
-point's flow across its surface counts fully, the component along it only with weight ``λ``. It still fits
-the net's own flow (not frame 2's points), so the head stays a function of the net's output.
+With ``planar`` (``HALFlowConfig.ego_planar``) the motion is restricted to a level camera on a ground
+vehicle: a turn about y and a translation in x–z (:func:`weighted_planar_fit`).
 """
 
 from __future__ import annotations
@@ -80,48 +74,8 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
     return R.to(src.dtype), t.to(src.dtype)
 
 
-def _skew(v: Tensor) -> Tensor:
-    """(..., 3) vectors -> (..., 3, 3) cross-product matrices ``[v]×`` (``[v]× u = v × u``)."""
-    z = torch.zeros_like(v[..., 0])
-    x, y, w = v.unbind(-1)
-    return torch.stack([z, -w, y, w, z, -x, -y, x, z], -1).reshape(*v.shape[:-1], 3, 3)
-
-
-def plane_weighted_refit(src: Tensor, dst: Tensor, weights: Tensor, normals: Tensor, R: Tensor, t: Tensor,
-                         tangent_weight: float = 0.1, steps: int = 2) -> tuple[Tensor, Tensor]:
-    """Refine ``(R, t)`` by Gauss–Newton steps on ``Σ w_i r_iᵀ (n'_i n'_iᵀ + λ (I − n'_i n'_iᵀ)) r_i``.
-
-    ``r_i = R src_i + t − dst_i``; ``n'_i = R normals_i`` (unit normals of ``src``'s surface, sign free);
-    ``λ`` = ``tangent_weight`` in (0, 1] (1: the point-to-point objective of :func:`weighted_rigid_fit`).
-    Shapes as there; ``R`` (B, 3, 3), ``t`` (B, 3) the start, metres. Each step solves the 6×6 normal
-    equations of the rotation increment ``ω`` (``R ← exp([ω]×) R``) and the translation increment.
-    Float64 inside; differentiable in ``src``, ``dst`` and the start.
-    """
-    s, d, n = src.double(), dst.double(), normals.double()
-    w = weights.double().clamp_min(0)
-    w = (w / w.sum(dim=1, keepdim=True).clamp_min(1e-12))[..., None, None]  # (B, N, 1, 1)
-    R, t = R.double(), t.double()
-    eye = torch.eye(3, dtype=s.dtype, device=s.device)
-    lam = float(tangent_weight)
-    for _ in range(max(1, steps)):
-        q = s @ R.transpose(1, 2)  # (B, N, 3): src turned
-        r = (q + t[:, None] - d)[..., None]  # (B, N, 3, 1)
-        nn_ = (n @ R.transpose(1, 2))[..., None]  # (B, N, 3, 1)
-        P = nn_ @ nn_.transpose(2, 3)
-        W = P + lam * (eye - P)  # (B, N, 3, 3): across the surface 1, along it λ
-        J = torch.cat([-_skew(q), eye.expand(*q.shape[:2], 3, 3)], dim=-1)  # (B, N, 3, 6): d r / d (ω, δt)
-        JtW = J.transpose(2, 3) @ W
-        H = (w * (JtW @ J)).sum(1)  # (B, 6, 6)
-        g = (w * (JtW @ r)).sum(1)  # (B, 6, 1)
-        x = -torch.linalg.solve(H + 1e-9 * torch.eye(6, dtype=H.dtype, device=H.device), g)[..., 0]
-        R = torch.linalg.matrix_exp(_skew(x[:, :3])) @ R
-        t = t + x[:, 3:]
-    return R.to(src.dtype), t.to(src.dtype)
-
-
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
-                        mad_factor: float = 0.0, normals: Tensor | None = None,
-                        tangent_weight: float = 0.1, planar: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        mad_factor: float = 0.0, planar: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -130,19 +84,14 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
     ``max(sigma, mad_factor · 1.4826 · median residual)`` per cloud, re-estimated every round (the
     median absolute residual times 1.4826 estimates a Gaussian's σ robustly); ``iterations`` the
-    re-weighting rounds. With ``normals`` (B, N, 3) of frame 1's surface at ``points`` each round's fit is
-    the plane-weighted one (:func:`plane_weighted_refit`, ``tangent_weight`` its λ); the re-weighting and
-    the gate still use the full residual, so a mover that slides along its own surface stays a mover.
-    ``planar``: the motion is a turn about y and a translation in x–z (:func:`weighted_planar_fit`;
-    not combined with ``normals``).
+    re-weighting rounds; ``planar``: the motion is a turn about y and a translation in x–z
+    (:func:`weighted_planar_fit`).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
     s2 = torch.full((points.shape[0], 1), sigma * sigma, dtype=points.dtype, device=points.device)
     for _ in range(max(1, iterations)):
         R, t = (weighted_planar_fit if planar else weighted_rigid_fit)(points, target, weights)
-        if normals is not None and not planar:
-            R, t = plane_weighted_refit(points, target, weights, normals, R, t, tangent_weight)
         with torch.no_grad():
             moved = points @ R.transpose(1, 2) + t[:, None]
             r2 = ((target - moved) ** 2).sum(-1)

@@ -36,8 +36,7 @@ from training.model.halflownet_config import HALFlowConfig
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
-from training.pointops import (estimate_normals, farthest_point_sample, first_n_sample, gather_points,
-                               three_nn_interpolate)
+from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
 
 @dataclass
 class _Pyramid:
@@ -116,17 +115,15 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor, normals: Tensor | None, idx: Tensor) -> tuple[Tensor, Tensor | None]:
+    def _ego(self, xyz: Tensor, flow: Tensor) -> tuple[Tensor, Tensor | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, and the
-        fitted motion's flow ``T̂ p − p`` (None without the head); ``normals`` are the input pc1's
-        (``ego_fit = "plane"``, else None), ``idx`` the level's points in it."""
+        fitted motion's flow ``T̂ p − p`` (None without the head)."""
         cfg = self.config
         if not cfg.ego_head:
             return flow, None
-        level_normals = None if normals is None else gather_points(normals, idx).float()
         x = xyz.float()
         out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
-                                           level_normals, cfg.ego_tangent_weight, cfg.ego_planar)
+                                           cfg.ego_planar)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         return out.to(flow.dtype), rigid.to(flow.dtype)
 
@@ -227,9 +224,6 @@ class HALFlowNet(nn.Module):
         cfg = self.config
         centre = pc1.mean(dim=1, keepdim=True) if cfg.center_input else pc1.new_zeros(pc1.shape[0], 1, 3)
         x1, x2 = pc1 - centre, pc2 - centre
-        normals = None
-        if cfg.ego_head and cfg.ego_fit == "plane":
-            normals = estimate_normals(x1, cfg.ego_normal_k, backend=cfg.knn_backend)
 
         if pc1.shape[1] == pc2.shape[1]:  # one pass over both clouds: shared weights, half the loops
             given = [None if a is None else torch.cat([a, b]) for a, b in zip(given1, given2)]
@@ -263,7 +257,7 @@ class HALFlowNet(nn.Module):
         coarse = self.head3_coarse(up)
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow, rigid = self._ego(xyz1_3, coarse + self.head3(hidden), normals, p1.idx[3])
+        flow, rigid = self._ego(xyz1_3, coarse + self.head3(hidden))
         flows, rigids = [flow], [rigid]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
@@ -274,7 +268,7 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid = self._ego(xyz, coarse + head(hidden), normals, p1.idx[lvl])
+            flow, rigid = self._ego(xyz, coarse + head(hidden))
             flows.insert(0, flow)
             rigids.insert(0, rigid)
 
@@ -283,10 +277,10 @@ class HALFlowNet(nn.Module):
         coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
         flow = coarse + self.head0(hidden)
         if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
-            flow, _ = self._ego(p1.xyz[0], flow, normals, p1.idx[0])
+            flow, _ = self._ego(p1.xyz[0], flow)
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
-        flow, rigid = self._ego(p1.xyz[0], flow, normals, p1.idx[0])
+        flow, rigid = self._ego(p1.xyz[0], flow)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
 

@@ -43,12 +43,6 @@ class HALFlowConfig:
         residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
         standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
     ego_iterations: re-weighting rounds of the robust rigid fit.
-    ego_fit: "point" — each round fits the rigid motion to the flow's targets point to point (Kabsch);
-        "plane" — then refines it counting each target's offset across frame 1's surface fully and along
-        it with weight ego_tangent_weight (a Chamfer-trained flow is ambiguous along a surface;
-        :func:`~training.model.ego_motion.plane_weighted_refit`).
-    ego_tangent_weight: λ in (0, 1] of the "plane" fit (1 = the point fit).
-    ego_normal_k: neighbours in the input pc1 of the PCA normals the "plane" fit uses.
     ego_planar: restrict the fitted camera motion to a ground vehicle's with a level camera — a turn about
         the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
         degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
@@ -78,9 +72,6 @@ class HALFlowConfig:
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
     ego_iterations: int = 4
-    ego_fit: str = "point"
-    ego_tangent_weight: float = 0.1
-    ego_normal_k: int = 16
     ego_planar: bool = False
     eval_norm_stats: str = "running"
 
@@ -110,13 +101,6 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
-        if self.ego_fit not in ("point", "plane"):
-            raise ConfigError(f"ego_fit must be 'point' or 'plane', got {self.ego_fit!r}")
-        if not 0 < self.ego_tangent_weight <= 1 or self.ego_normal_k < 3:
-            raise ConfigError(f"need 0 < ego_tangent_weight <= 1 and ego_normal_k >= 3, got {self.ego_tangent_weight}, "
-                              f"{self.ego_normal_k}")
-        if self.ego_planar and self.ego_fit == "plane":
-            raise ConfigError("ego_planar and ego_fit 'plane' do not combine (the plane refit is for the 6-DoF motion)")
         if self.eval_norm_stats not in ("running", "input"):
             raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
         if self.set_conv_pooling not in ("max", "attentive"):
