@@ -161,4 +161,3 @@ def three_nn_interpolate(
 ) -> Tensor:
     """PointNet++'s feature propagation weights: :func:`knn_interpolate` with ``k = 3``."""
     return knn_interpolate(query_xyz, ref_xyz, ref_feat, 3, eps, backend)
-

@@ -144,4 +144,3 @@ def test_triton_fps_matches_the_loop_on_a_gpu():
         assert fast.dtype == torch.int64 and fast.shape == (xyz.shape[0], n)
         assert all(len(set(row.tolist())) == n for row in fast.cpu())  # distinct indices
         torch.testing.assert_close(fast, farthest_point_sample_loop(xyz, n), rtol=0, atol=0)
-
