@@ -2,7 +2,8 @@
 torch: the kNN backends (:mod:`training.knn`), the depth-consistency variants
 (:mod:`training.losses.depth_consistency`), the orders of the level factors α (:mod:`training.losses.total`) and
 the pc2 points each level's Chamfer and Laplacian compare with (:func:`training.two_pass.level_inputs`) and
-the learning-rate schedules (:func:`training.trainer.lr_factor`)."""
+the learning-rate schedules (:func:`training.trainer.lr_factor`) and the flow net's
+normalisation layers (:class:`training.model.layers.SharedMLP`)."""
 
 from __future__ import annotations
 
@@ -22,3 +23,6 @@ PC2_TARGETS: tuple[str, ...] = ("level", "finest", "independent")
 
 LrSchedule = Literal["step", "cosine"]
 SCHEDULES: tuple[str, ...] = ("step", "cosine")
+
+NormKind = Literal["batch", "layer", "none"]
+NORMS: tuple[str, ...] = ("batch", "layer", "none")

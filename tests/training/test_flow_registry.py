@@ -113,6 +113,22 @@ def test_old_checkpoints_without_a_name_hold_a_halflownet(tmp_path: Path) -> Non
     assert net.model_name == "halflownet" and isinstance(net.net, HALFlowNet)
 
 
+@pytest.mark.parametrize("flag, norm", [(True, "batch"), (False, "none")])
+def test_runs_saved_with_the_boolean_batch_norm_field_read_as_they_trained(tmp_path: Path, flag, norm) -> None:
+    from training.model.halflownet_config import HALFlowConfig
+    from training.model.registry import restore_flow_net
+    from testkit.flow_checkpoint import tiny_flow_checkpoint
+    from training.runtime.checkpoints import load_checkpoint
+
+    ckpt = load_checkpoint(tiny_flow_checkpoint(tmp_path / "new.pt"), kind="flow")
+    fields = dict(ckpt["config"]["model"])
+    assert fields.pop("norm") == "batch"
+    assert HALFlowConfig.from_saved({**fields, "batch_norm": flag}).norm == norm
+    ckpt["config"]["model"] = {**fields, "batch_norm": True}
+    _, config, _ = restore_flow_net(ckpt, tmp_path / "old.pt")
+    assert config.norm == "batch"
+
+
 def test_the_registry_builds_the_default_net_exactly_as_its_class() -> None:
     from training.model.halflownet import HALFlowNet
     from training.model.halflownet_config import HALFlowConfig

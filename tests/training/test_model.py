@@ -123,7 +123,7 @@ def test_eval_is_deterministic_and_options_run():
         a, b = net(pc1, pc2, f1, f2), net(pc1, pc2, f1, f2)
     assert all(torch.equal(x, y) for x, y in zip(a.flows, b.flows))
     # Other options: no features, attentive pooling, no batch norm, the torch kNN backend, N1 != N2.
-    cfg = HALFlowConfig(**SMALL, feature_dim=0, set_conv_pooling="attentive", batch_norm=False, knn_backend="torch")
+    cfg = HALFlowConfig(**SMALL, feature_dim=0, set_conv_pooling="attentive", norm="none", knn_backend="torch")
     out = HALFlowNet(cfg)(pc1, pc2[:, :400])
     assert [tuple(f.shape) for f in out.flows] == [(2, n, 3) for n in cfg.level_points[:4]]
     assert all(i.max() < 400 for i in out.indices2)

@@ -44,7 +44,7 @@ class AttentiveCostVolume(nn.Module):
         attention_widths: Sequence[int],
         k_pc2: int,
         k_pc1: int,
-        batch_norm: bool = True,
+        norm: str = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         """Args:
@@ -60,11 +60,11 @@ class AttentiveCostVolume(nn.Module):
             raise InputError("AttentiveCostVolume", f"last attention width {attention_widths[-1]} != cost width {c}")
         self.k_pc2, self.k_pc1 = k_pc2, k_pc1
         self.knn_backend = knn_backend
-        self.pair_cost = SharedMLP(10 + 2 * in_channels, cost_widths, batch_norm)
-        self.pair_geometry = SharedMLP(10, [c], batch_norm)
-        self.pair_attention = SharedMLP(2 * c, attention_widths, batch_norm, last_linear=True)
-        self.patch_geometry = SharedMLP(10, [c], batch_norm)
-        self.patch_attention = SharedMLP(2 * c + in_channels, attention_widths, batch_norm, last_linear=True)
+        self.pair_cost = SharedMLP(10 + 2 * in_channels, cost_widths, norm)
+        self.pair_geometry = SharedMLP(10, [c], norm)
+        self.pair_attention = SharedMLP(2 * c, attention_widths, norm, last_linear=True)
+        self.patch_geometry = SharedMLP(10, [c], norm)
+        self.patch_attention = SharedMLP(2 * c + in_channels, attention_widths, norm, last_linear=True)
         self.out_channels = c
 
     def forward(self, xyz1: Tensor, feat1: Tensor, xyz2: Tensor, feat2: Tensor) -> Tensor:

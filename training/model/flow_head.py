@@ -31,10 +31,10 @@ class FlowRefiner(nn.Module):
     flow correction."""
 
     def __init__(
-        self, feat_channels: int, cost_channels: int, up_channels: int, widths: Sequence[int], batch_norm: bool = True
+        self, feat_channels: int, cost_channels: int, up_channels: int, widths: Sequence[int], norm: str = "batch"
     ) -> None:
         super().__init__()
-        self.mlp = SharedMLP(3 + feat_channels + cost_channels + up_channels, widths, batch_norm)
+        self.mlp = SharedMLP(3 + feat_channels + cost_channels + up_channels, widths, norm)
         self.out_channels = self.mlp.out_channels
 
     def forward(self, coarse_flow: Tensor, feat: Tensor, cost: Tensor, upsampled: Tensor) -> Tensor:

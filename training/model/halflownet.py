@@ -55,7 +55,7 @@ class HALFlowNet(nn.Module):
     def __init__(self, config: HALFlowConfig | None = None) -> None:
         super().__init__()
         cfg = self.config = config or HALFlowConfig()
-        bn, kb = cfg.batch_norm, cfg.knn_backend
+        bn, kb = cfg.norm, cfg.knn_backend
 
         def w(*widths: int) -> list[int]:
             return [scaled(c, cfg.width_scale) for c in widths]

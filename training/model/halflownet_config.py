@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from core.errors import ConfigError
-from training.choices import BACKENDS
+from training.choices import BACKENDS, NORMS
 
 N_LEVELS = 5  # L0..L4; flows come out at L0..L3
 
@@ -28,7 +28,9 @@ class HALFlowConfig:
     knn_backend: "auto" | "kdtree" | "torch" (see training.knn).
     upconv_k: neighbours of the set-upconv layers (HALFlowNet: 8).
     set_conv_pooling: "max" (HALFlowNet) | "attentive".
-    batch_norm: batch norm after every hidden linear layer (HALFlowNet: yes).
+    norm: the normalisation after every hidden linear layer: ``"batch"`` (HALFlowNet's batch norm, running
+        statistics at inference), ``"layer"`` (each point's features over their channels: no batch or running
+        statistics, so a LiDAR test cloud is normalised as the camera training clouds were), ``"none"``.
     center_input: shift both clouds by pc1's mean before the net (the released port does).
     l0_cost_volume: add a warping refinement at L0 as at L1–L3 — warp L0's flow (through the ego head when
         on), a cost volume against frame 2's L0 points (refine_k / cost_k_pc1 neighbours), a residual flow.
@@ -65,7 +67,7 @@ class HALFlowConfig:
     knn_backend: str = "auto"
     upconv_k: int = 8
     set_conv_pooling: str = "max"
-    batch_norm: bool = True
+    norm: str = "batch"
     center_input: bool = True
     l0_cost_volume: bool = False
     ego_head: bool = False
@@ -103,8 +105,21 @@ class HALFlowConfig:
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
         if self.eval_norm_stats not in ("running", "input"):
             raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
+        if self.norm not in NORMS:
+            raise ConfigError(f"norm must be one of {NORMS}, got {self.norm!r}")
+        if self.eval_norm_stats == "input" and self.norm != "batch":
+            raise ConfigError(f"eval_norm_stats 'input' needs norm 'batch', got {self.norm!r}")
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
+
+    @classmethod
+    def from_saved(cls, fields: dict[str, Any]) -> "HALFlowConfig":
+        """The config of a saved run's ``model`` dict; a run saved before ``norm`` replaced the boolean
+        ``batch_norm`` field (true = ``"batch"``, false = ``"none"``) reads as it trained."""
+        fields = dict(fields)
+        if "batch_norm" in fields and "norm" not in fields:
+            fields["norm"] = "batch" if fields.pop("batch_norm") else "none"
+        return cls(**fields)
 
     @property
     def output_points(self) -> tuple[int, ...]:

@@ -1,9 +1,12 @@
 """The building block of every HALFlowNet module: a shared MLP applied to the last (channel) axis.
 
 Channels-last tensors (..., C) of any rank — per point (B, M, C) or per neighbour (B, M, k, C) — go
-through ``Linear → BatchNorm → ReLU`` layers; batch norm normalises over every leading position, the same
-statistics a 1×1 convolution with ``BatchNorm2d`` would use. ``last_linear=True`` leaves the last layer
-without norm and activation (for attention logits and flow heads).
+through ``Linear → norm → ReLU`` layers. The norm (:data:`training.choices.NORMS`) is HALFlowNet's batch norm, which
+normalises over every leading position (the statistics a 1×1 convolution with ``BatchNorm2d`` would use;
+running statistics at inference), or a per-position layer norm over the channels, which depends on
+nothing but the position's own features (the same in training and at inference, on any cloud), or none.
+``last_linear=True`` leaves the last layer without norm and activation (for attention logits and flow
+heads).
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from training.choices import NORMS
 
 
 def scaled(width: int, scale: float) -> int:
@@ -24,9 +29,11 @@ class SharedMLP(nn.Module):
     """Pointwise MLP over the last axis: ``in_channels → widths[0] → … → widths[-1]``."""
 
     def __init__(
-        self, in_channels: int, widths: Sequence[int], batch_norm: bool = True, last_linear: bool = False
+        self, in_channels: int, widths: Sequence[int], norm: str = "batch", last_linear: bool = False
     ) -> None:
         super().__init__()
+        if norm not in NORMS:
+            raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
         self.in_channels = in_channels
         self.out_channels = widths[-1] if widths else in_channels
         self.linears = nn.ModuleList()
@@ -38,8 +45,12 @@ class SharedMLP(nn.Module):
         c = in_channels
         for i, w in enumerate(widths):
             plain = last_linear and i == len(widths) - 1
-            self.linears.append(nn.Linear(c, w, bias=plain or not batch_norm))
-            self.norms.append(nn.BatchNorm1d(w) if batch_norm and not plain else nn.Identity())
+            normed = norm != "none" and not plain
+            self.linears.append(nn.Linear(c, w, bias=not normed))
+            if not normed:
+                self.norms.append(nn.Identity())
+            else:
+                self.norms.append(nn.BatchNorm1d(w) if norm == "batch" else nn.LayerNorm(w))
             self.activate.append(not plain)
             c = w
 
@@ -47,7 +58,9 @@ class SharedMLP(nn.Module):
         """(..., in_channels) -> (..., out_channels)."""
         for linear, norm, act in zip(self.linears, self.norms, self.activate):
             x = linear(x)
-            if not isinstance(norm, nn.Identity):
+            if isinstance(norm, nn.LayerNorm):
+                x = norm(x)
+            elif not isinstance(norm, nn.Identity):  # batch norm (or its SyncBatchNorm conversion)
                 shape = x.shape
                 flat = x.reshape(-1, shape[-1])
                 if self.input_stats and not self.training:

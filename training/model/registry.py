@@ -94,7 +94,9 @@ def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowN
     try:
         run = ckpt["config"]
         name = model_name_of(run)
-        config = config_class(name)(**run["model"])
+        cls = config_class(name)
+        saved = getattr(cls, "from_saved", None)  # a config may read fields of older runs (HALFlowConfig)
+        config = saved(run["model"]) if saved is not None else cls(**run["model"])
         state = ckpt["model"]
     except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None

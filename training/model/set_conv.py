@@ -39,7 +39,7 @@ class SetConv(nn.Module):
         widths: Sequence[int],
         k: int,
         pooling: Pooling = "max",
-        batch_norm: bool = True,
+        norm: str = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()
@@ -48,7 +48,7 @@ class SetConv(nn.Module):
         self.k = k
         self.pooling = pooling
         self.knn_backend = knn_backend
-        self.mlp = SharedMLP(in_channels + 3, widths, batch_norm)
+        self.mlp = SharedMLP(in_channels + 3, widths, norm)
         self.out_channels = self.mlp.out_channels
         self.score = nn.Linear(self.out_channels, self.out_channels) if pooling == "attentive" else None
 

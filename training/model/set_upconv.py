@@ -27,14 +27,14 @@ class SetUpConv(nn.Module):
         k: int,
         widths: Sequence[int],
         post_widths: Sequence[int],
-        batch_norm: bool = True,
+        norm: str = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()
         self.k = k
         self.knn_backend = knn_backend
-        self.mlp = SharedMLP(sparse_channels + 3, widths, batch_norm)
-        self.post = SharedMLP(self.mlp.out_channels + dense_channels, post_widths, batch_norm)
+        self.mlp = SharedMLP(sparse_channels + 3, widths, norm)
+        self.post = SharedMLP(self.mlp.out_channels + dense_channels, post_widths, norm)
         self.out_channels = self.post.out_channels
 
     def forward(self, dense_xyz: Tensor, sparse_xyz: Tensor, dense_feat: Tensor, sparse_feat: Tensor) -> Tensor:
@@ -54,12 +54,12 @@ class FeaturePropagation(nn.Module):
         dense_channels: int,
         sparse_channels: int,
         widths: Sequence[int],
-        batch_norm: bool = True,
+        norm: str = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()
         self.knn_backend = knn_backend
-        self.mlp = SharedMLP(sparse_channels + dense_channels, widths, batch_norm)
+        self.mlp = SharedMLP(sparse_channels + dense_channels, widths, norm)
         self.out_channels = self.mlp.out_channels
 
     def forward(
