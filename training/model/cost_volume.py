@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from core.errors import InputError
+from training.choices import NormKind
 from training.knn import KnnBackend, knn
 from training.model.layers import SharedMLP
 from training.pointops import group
@@ -44,7 +45,7 @@ class AttentiveCostVolume(nn.Module):
         attention_widths: Sequence[int],
         k_pc2: int,
         k_pc1: int,
-        norm: str = "batch",
+        norm: NormKind = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         """Args:

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from training.choices import NormKind
 from training.model.layers import SharedMLP
 
 
@@ -31,7 +32,7 @@ class FlowRefiner(nn.Module):
     flow correction."""
 
     def __init__(
-        self, feat_channels: int, cost_channels: int, up_channels: int, widths: Sequence[int], norm: str = "batch"
+        self, feat_channels: int, cost_channels: int, up_channels: int, widths: Sequence[int], norm: NormKind = "batch"
     ) -> None:
         super().__init__()
         self.mlp = SharedMLP(3 + feat_channels + cost_channels + up_channels, widths, norm)

@@ -55,7 +55,7 @@ class HALFlowNet(nn.Module):
     def __init__(self, config: HALFlowConfig | None = None) -> None:
         super().__init__()
         cfg = self.config = config or HALFlowConfig()
-        bn, kb = cfg.norm, cfg.knn_backend
+        nm, kb = cfg.norm, cfg.knn_backend
 
         def w(*widths: int) -> list[int]:
             return [scaled(c, cfg.width_scale) for c in widths]
@@ -63,44 +63,44 @@ class HALFlowNet(nn.Module):
         k = cfg.level_k
         pool = cfg.set_conv_pooling
         # Encoder, shared by both frames at L0..L2.
-        self.sa0 = SetConv(cfg.feature_dim, w(16, 16, 32), k[0], pool, bn, kb)
-        self.sa1 = SetConv(self.sa0.out_channels, w(32, 32, 64), k[1], pool, bn, kb)
-        self.sa2 = SetConv(self.sa1.out_channels, w(64, 64, 128), k[2], pool, bn, kb)
+        self.sa0 = SetConv(cfg.feature_dim, w(16, 16, 32), k[0], pool, nm, kb)
+        self.sa1 = SetConv(self.sa0.out_channels, w(32, 32, 64), k[1], pool, nm, kb)
+        self.sa2 = SetConv(self.sa1.out_channels, w(64, 64, 128), k[2], pool, nm, kb)
         c0, c1, c2 = self.sa0.out_channels, self.sa1.out_channels, self.sa2.out_channels
-        self.sa3_pc2 = SetConv(c2, w(128, 128, 256), k[3], pool, bn, kb)
+        self.sa3_pc2 = SetConv(c2, w(128, 128, 256), k[3], pool, nm, kb)
         c3 = self.sa3_pc2.out_channels
 
         # First embedding at L2, then the flow branch down to L4.
-        self.cost_l2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.cost_k_pc2, cfg.cost_k_pc1, bn, kb)
-        self.sa3_flow = SetConv(self.cost_l2.out_channels, w(128, 128, 256), k[3], pool, bn, kb)
-        self.sa4 = SetConv(self.sa3_flow.out_channels, w(256, 256, 512), k[4], pool, bn, kb)
+        self.cost_l2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.cost_k_pc2, cfg.cost_k_pc1, nm, kb)
+        self.sa3_flow = SetConv(self.cost_l2.out_channels, w(128, 128, 256), k[3], pool, nm, kb)
+        self.sa4 = SetConv(self.sa3_flow.out_channels, w(256, 256, 512), k[4], pool, nm, kb)
 
         # L3: coarse flow, then one warping refinement.
         c3_flow = self.sa3_flow.out_channels
-        self.up3 = SetUpConv(c3_flow, self.sa4.out_channels, cfg.upconv_k, w(256, 256, 512), w(512), bn, kb)
+        self.up3 = SetUpConv(c3_flow, self.sa4.out_channels, cfg.upconv_k, w(256, 256, 512), w(512), nm, kb)
         self.head3_coarse = FlowHead(self.up3.out_channels)
-        self.cost3 = AttentiveCostVolume(c3, w(512, 256, 256), w(512, 256), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
-        self.refine3 = FlowRefiner(c3_flow, self.cost3.out_channels, self.up3.out_channels, w(512, 256, 256), bn)
+        self.cost3 = AttentiveCostVolume(c3, w(512, 256, 256), w(512, 256), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
+        self.refine3 = FlowRefiner(c3_flow, self.cost3.out_channels, self.up3.out_channels, w(512, 256, 256), nm)
         self.head3 = FlowHead(self.refine3.out_channels)
 
         # L2 and L1: upsample, warp, cost volume, refine.
-        self.up2 = SetUpConv(c2, self.refine3.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), bn, kb)
-        self.cost2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
-        self.refine2 = FlowRefiner(c2, self.cost2.out_channels, self.up2.out_channels, w(256, 128, 128), bn)
+        self.up2 = SetUpConv(c2, self.refine3.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), nm, kb)
+        self.cost2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
+        self.refine2 = FlowRefiner(c2, self.cost2.out_channels, self.up2.out_channels, w(256, 128, 128), nm)
         self.head2 = FlowHead(self.refine2.out_channels)
 
-        self.up1 = SetUpConv(c1, self.refine2.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), bn, kb)
-        self.cost1 = AttentiveCostVolume(c1, w(128, 64, 64), w(128, 64), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
-        self.refine1 = FlowRefiner(c1, self.cost1.out_channels, self.up1.out_channels, w(256, 128, 128), bn)
+        self.up1 = SetUpConv(c1, self.refine2.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), nm, kb)
+        self.cost1 = AttentiveCostVolume(c1, w(128, 64, 64), w(128, 64), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
+        self.refine1 = FlowRefiner(c1, self.cost1.out_channels, self.up1.out_channels, w(256, 128, 128), nm)
         self.head1 = FlowHead(self.refine1.out_channels)
 
         # L0: feature propagation of L1's refinement features, residual flow.
-        self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), bn, kb)
-        self.fc0 = SharedMLP(self.fp0.out_channels, w(128), bn)
+        self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), nm, kb)
+        self.fc0 = SharedMLP(self.fp0.out_channels, w(128), nm)
         self.head0 = FlowHead(self.fc0.out_channels)
         if cfg.l0_cost_volume:  # a fifth warping level at L0 (a departure, HALFlowConfig.l0_cost_volume)
-            self.cost0 = AttentiveCostVolume(c0, w(64, 32, 32), w(64, 32), cfg.refine_k, cfg.cost_k_pc1, bn, kb)
-            self.refine0 = FlowRefiner(c0, self.cost0.out_channels, self.fc0.out_channels, w(128, 64, 64), bn)
+            self.cost0 = AttentiveCostVolume(c0, w(64, 32, 32), w(64, 32), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
+            self.refine0 = FlowRefiner(c0, self.cost0.out_channels, self.fc0.out_channels, w(128, 64, 64), nm)
             self.head0_refine = FlowHead(self.refine0.out_channels)
         self.set_eval_norm_stats(cfg.eval_norm_stats)
 

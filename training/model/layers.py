@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from training.choices import NORMS
+from training.choices import NORMS, NormKind
 
 
 def scaled(width: int, scale: float) -> int:
@@ -29,7 +29,7 @@ class SharedMLP(nn.Module):
     """Pointwise MLP over the last axis: ``in_channels → widths[0] → … → widths[-1]``."""
 
     def __init__(
-        self, in_channels: int, widths: Sequence[int], norm: str = "batch", last_linear: bool = False
+        self, in_channels: int, widths: Sequence[int], norm: NormKind = "batch", last_linear: bool = False
     ) -> None:
         super().__init__()
         if norm not in NORMS:

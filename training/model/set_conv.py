@@ -15,6 +15,7 @@ import torch
 from torch import Tensor, nn
 
 from core.errors import InputError
+from training.choices import NormKind
 from training.knn import KnnBackend, knn
 from training.model.layers import SharedMLP
 from training.pointops import group
@@ -39,7 +40,7 @@ class SetConv(nn.Module):
         widths: Sequence[int],
         k: int,
         pooling: Pooling = "max",
-        norm: str = "batch",
+        norm: NormKind = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()

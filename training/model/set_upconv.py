@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from training.choices import NormKind
 from training.knn import KnnBackend, knn
 from training.model.layers import SharedMLP
 from training.pointops import group, three_nn_interpolate
@@ -27,7 +28,7 @@ class SetUpConv(nn.Module):
         k: int,
         widths: Sequence[int],
         post_widths: Sequence[int],
-        norm: str = "batch",
+        norm: NormKind = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()
@@ -54,7 +55,7 @@ class FeaturePropagation(nn.Module):
         dense_channels: int,
         sparse_channels: int,
         widths: Sequence[int],
-        norm: str = "batch",
+        norm: NormKind = "batch",
         knn_backend: KnnBackend = "auto",
     ) -> None:
         super().__init__()
