@@ -11,8 +11,10 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     """The demo's :class:`~training.config.TrainConfig`: a half-width net at 2048 points, batch 4, on
     geometry alone (the LiDAR-like test splits have no colours), with the rigid ego-motion head, a warping
     cost volume at the finest level (``model.l0_cost_volume``: at 2048 points the paper's net matches last
-    at 256), the camera-to-LiDAR augmentations and camera speeds rescaled ×½ … ×2
-    (``data.ego_speed_scale``, docs/learned-flow.md); ``overrides`` are dotted ``{"model.ego_head": False}``
+    at 256), a per-point layer norm instead of batch norm (``model.norm``) with the ego-motion term
+    (``loss.ego_motion``: the head's rigid motion against stage one's static flow), the camera-to-LiDAR
+    augmentations and camera speeds rescaled ×½ … ×2 (``data.ego_speed_scale``; docs/learned-flow.md,
+    seventh and eighth rounds); ``overrides`` are dotted ``{"model.ego_head": False}``
     pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
@@ -23,7 +25,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "data": {"n_points": n_points, "workers": 1, "colour_features": False,
                  "lidar_rings": 0.5, "density_drop": 0.3, "ground_jitter_m": 0.3, "ego_speed_scale": [0.5, 2.0]},
         "optim": {"batch_size": 4},
+        "loss": {"ego_motion": 1.0},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
-                  "ego_head": True, "l0_cost_volume": True},
+                  "ego_head": True, "l0_cost_volume": True, "norm": "layer"},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")
