@@ -77,3 +77,6 @@ def test_unknown_norm_and_input_statistics_without_batch_norm_are_refused():
         HALFlowConfig(norm="group")
     with pytest.raises(ConfigError, match="needs norm 'batch'"):
         HALFlowConfig(norm="layer", eval_norm_stats="input")
+    net = HALFlowNet(HALFlowConfig(n_points=512, level_points=level_points_for(512), width_scale=0.25, norm="layer"))
+    with pytest.raises(ConfigError, match="needs norm 'batch'"):  # switched at test time, as learning_curve does
+        net.set_eval_norm_stats("input")

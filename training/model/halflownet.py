@@ -27,12 +27,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from core.errors import ConfigError, InputError
+from core.errors import InputError
 from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
 from training.model.ego_motion import rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
-from training.model.halflownet_config import HALFlowConfig
+from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stats
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
@@ -106,8 +106,7 @@ class HALFlowNet(nn.Module):
 
     def set_eval_norm_stats(self, mode: str) -> None:
         """``"running"`` or ``"input"`` statistics for batch norm in eval mode (see :class:`HALFlowConfig`)."""
-        if mode not in ("running", "input"):
-            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {mode!r}")
+        check_eval_norm_stats(mode, self.config.norm)
         self.config.eval_norm_stats = mode
         for m in self.modules():
             if isinstance(m, SharedMLP):

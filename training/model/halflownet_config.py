@@ -103,12 +103,9 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
-        if self.eval_norm_stats not in ("running", "input"):
-            raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {self.eval_norm_stats!r}")
         if self.norm not in NORMS:
             raise ConfigError(f"norm must be one of {NORMS}, got {self.norm!r}")
-        if self.eval_norm_stats == "input" and self.norm != "batch":
-            raise ConfigError(f"eval_norm_stats 'input' needs norm 'batch', got {self.norm!r}")
+        check_eval_norm_stats(self.eval_norm_stats, self.norm)
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
 
@@ -137,6 +134,15 @@ class HALFlowConfig:
         over = [f"level {i}: {k} > {n}" for i, (k, n) in enumerate(zip(self.level_k, sources)) if k > n]
         if over:
             raise ConfigError(f"model.level_k larger than the points it picks neighbours from ({'; '.join(over)})")
+
+
+def check_eval_norm_stats(mode: str, norm: str) -> None:
+    """ConfigError unless ``mode`` is an ``eval_norm_stats`` value that the net's ``norm`` can use (the input's
+    own statistics need batch norm); shared by the config and :meth:`HALFlowNet.set_eval_norm_stats`."""
+    if mode not in ("running", "input"):
+        raise ConfigError(f"eval_norm_stats must be 'running' or 'input', got {mode!r}")
+    if mode == "input" and norm != "batch":
+        raise ConfigError(f"eval_norm_stats 'input' needs norm 'batch', got {norm!r}")
 
 
 def level_points_for(n_points: int) -> tuple[int, ...]:
