@@ -74,8 +74,8 @@ def _config(cache: Path, run_dir: Path, size: str, args):
                        threads=args.threads, amp=args.amp, log_every=10**6, val_every=10**6, ckpt_every=10**6,
                        progress=False, data=DataConfig(n_points=s["n_points"], workers=args.workers, val_fraction=0.0),
                        optim=OptimConfig(batch_size=s["batch"]),
-                       model=HALFlowConfig(n_points=s["n_points"], level_points=levels, width_scale=s["width_scale"],
-                                           **_model_overrides(args.model)))
+                       model=HALFlowConfig(**{"n_points": s["n_points"], "level_points": levels,
+                                              "width_scale": s["width_scale"], **_model_overrides(args.model)}))
 
 
 def _model_overrides(items: list[str]) -> dict:
