@@ -11,7 +11,9 @@ with ICP and FGR on the same points, and reports for every split the rigid ego-m
 flow on static points (Kabsch fit; camera-1 → camera-2 frame, metres): its translation length against the
 true one, the error of the translation and rotation, and their signed means per axis (x right, y down,
 z forward; rotation as Euler angles about x = pitch, y = yaw, z = roll), which show a bias where a plain
-mean error cannot. Used for docs/learned-flow.md ("Second round", "Seventh round")::
+mean error cannot. ``--per-level`` repeats the ego-motion check for the flow of every pyramid level (L3, the
+coarsest, to L0), each interpolated onto the scored points, with its EPE3D on static points: which level
+leaves the error behind. Used for docs/learned-flow.md ("Second round", "Seventh round", "Ninth round")::
 
     python -m benchmarks.sensor_gap --checkpoint runs/curve/step_000500.pt,runs/curve/step_001000.pt \\
         --cache w/cache/world/<hash> --test-cache w/cache06/world/<hash> --split own=w/world/sceneflow/flownet3d
@@ -80,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--test-cache", help="stage one run on the test sequence (cam-test)")
     p.add_argument("--split", action="append", default=[], help="NAME=FOLDER of a LiDAR scene-flow split")
     p.add_argument("--max-scenes", type=int, default=40)
+    p.add_argument("--per-level", action="store_true",
+                   help="also the ego-motion of every level's flow (coarsest first), on the LiDAR splits")
     args = p.parse_args(argv)
 
     from benchmarks.learning_curve import score_splits
@@ -113,7 +117,25 @@ def main(argv: list[str] | None = None) -> int:
                   f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg; mean signed error "
                   f"t ({e['dt_x']:+.3f}, {e['dt_y']:+.3f}, {e['dt_z']:+.3f}) m, pitch {e['dr_pitch']:+.3f}, "
                   f"yaw {e['dr_yaw']:+.3f}, roll {e['dr_roll']:+.3f} deg", flush=True)
+        if args.per_level and name not in ("cam-val", "cam-test"):
+            for net in nets:
+                print_levels(net, name, split, cfg)
     return 0
+
+
+def print_levels(net, split_name: str, split, cfg) -> None:
+    """One line per pyramid level of ``net`` (coarsest first): the ego-motion check of that level's flow and
+    its EPE3D on static points (metres), both on the points the protocol scores."""
+    from benchmarks.learning_curve import score_splits
+    from evaluation.methods import NetMethod
+
+    levels = [NetMethod(net.checkpoint, name=f"L{lvl}", level=lvl) for lvl in range(len(net.config.output_points))]
+    scores = score_splits(levels, {split_name: split}, cfg.n_points, cfg.n_score)[split_name]
+    for m in reversed(levels):
+        e = ego_errors(m, split, cfg)
+        print(f"{split_name:10s} {net.name:40s} {m.name}: |t| {e['t_net']:.2f} m (true {e['t_true']:.2f}), "
+              f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg, static EPE3D "
+              f"{scores[m.name].get('EPE3D_static', float('nan')):.3f}", flush=True)
 
 
 if __name__ == "__main__":

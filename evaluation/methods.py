@@ -69,10 +69,13 @@ class NetMethod:
     The net is the registered one the checkpoint names (``config["model_name"]``, HALFlowNet for older
     checkpoints; :mod:`training.model.registry`) with the architecture of its ``config["model"]``; colours
     are the per-point features when the run trained with ``config["data"]["colour_features"]`` and the
-    split has them, else zeros (:attr:`uses_colour`).
+    split has them, else zeros (:attr:`uses_colour`). ``level`` picks the pyramid level whose flow is
+    returned (0, the finest, for every score; a coarser one, interpolated onto the input points, for
+    diagnostics such as ``benchmarks.sensor_gap --per-level``).
     """
 
-    def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None) -> None:
+    def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
+                 level: int = 0) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -90,6 +93,9 @@ class NetMethod:
         self.step = int(ckpt.get("step", 0))
         self.checkpoint = path
         self.name = name or f"ours ({path.parent.name}, step {self.step})"
+        self.level = int(level)
+        if not 0 <= self.level < len(self.config.output_points):
+            raise ValueError(f"{path}: level {level} is not one of the net's levels 0..{len(self.config.output_points) - 1}")
         self._torch = torch
 
     @property
@@ -114,7 +120,7 @@ class NetMethod:
         with torch.no_grad():
             p1 = t(pc1)
             out = self.net(p1, t(pc2), f1, f2)
-            flow = three_nn_interpolate(p1, out.points[0], out.flows[0].float())
+            flow = three_nn_interpolate(p1, out.points[self.level], out.flows[self.level].float())
         return flow[0].cpu().numpy().astype(np.float32)
 
 

@@ -43,3 +43,17 @@ def test_truth_has_no_error_and_a_known_bias_shows_on_its_axis():
     assert e["dt_y"] == pytest.approx(0.1, abs=1e-4) and e["dt_z"] == pytest.approx(0.3, abs=1e-4)
     assert e["t_net"] == pytest.approx(np.linalg.norm(T[:3, 3] + [0.0, 0.1, 0.3]), abs=1e-3)
     assert max(abs(e[k]) for k in ("dr_pitch", "dr_yaw", "dr_roll")) < 1e-3
+
+
+def test_per_level_report_has_one_line_per_level_coarsest_first(tmp_path, capsys):
+    from benchmarks.sensor_gap import print_levels
+    from evaluation.methods import NetMethod
+    from testkit.flow_checkpoint import tiny_flow_checkpoint
+
+    split, _ = _split(400)
+    net = NetMethod(tiny_flow_checkpoint(tmp_path / "net.pt"), device="cpu", name="tiny")
+    cfg = ProtocolConfig(protocol="fps", n_points=256, n_score=128, seeds=(0,), warmup=False).validate()
+    print_levels(net, "own", split, cfg)
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert [line.split()[2] for line in lines] == ["L3:", "L2:", "L1:", "L0:"]
+    assert all("|t|" in line and "static EPE3D" in line and "nan" not in line for line in lines)
