@@ -13,7 +13,10 @@ true one, the error of the translation and rotation, and their signed means per 
 z forward; rotation as Euler angles about x = pitch, y = yaw, z = roll), which show a bias where a plain
 mean error cannot. ``--per-level`` repeats the ego-motion check for the flow of every pyramid level (L3, the
 coarsest, to L0), each interpolated onto the scored points, with its EPE3D on static points: which level
-leaves the error behind. Used for docs/learned-flow.md ("Second round", "Seventh round", "Ninth round")::
+leaves the error behind. ``--speed-scales 0.5,1.5,2`` adds the camera-cloud pairs (cam-test, else cam-val) with
+the camera's motion rescaled as training's ``data.ego_speed_scale`` does (frame t's cloud moved, frame t+1
+and the targets kept): how the net's translation follows the true one when only the speed changes, the same
+scenes. Used for docs/learned-flow.md ("Second round", "Seventh round", "Ninth round")::
 
     python -m benchmarks.sensor_gap --checkpoint runs/curve/step_000500.pt,runs/curve/step_001000.pt \\
         --cache w/cache/world/<hash> --test-cache w/cache06/world/<hash> --split own=w/world/sceneflow/flownet3d
@@ -26,18 +29,24 @@ import argparse
 import numpy as np
 
 
-def cache_samples(reader, indices: list[int] | None, tag: str) -> list:
+def cache_samples(reader, indices: list[int] | None, tag: str, speed_scale: float = 1.0) -> list:
     """Labelled camera-cloud pairs of a stage-one cache (a :class:`pipeline.cache.CacheReader`) as scene-flow
-    samples (camera frames, metres)."""
+    samples (camera frames, metres). With ``speed_scale`` ≠ 1 each pair's camera motion is rescaled by
+    :func:`training.augment.speed_scaled_view` (frame t's points moved to ``A p``, the flow targets in frame
+    t+1 kept, so the true flow becomes ``p + f − A p``)."""
+    from core.geometry import transform_points
     from evaluation.sample import SceneFlowSample
+    from training.augment import speed_scaled_view
 
     out = []
     for i in (range(len(reader)) if indices is None else indices):
         s = reader[i]
         if s.gt_flow is None:
             continue
-        out.append(SceneFlowSample(name=f"{tag}{i:05d}", pc1=s.pc1.astype(np.float32), pc2=s.pc2.astype(np.float32),
-                                   flow=s.gt_flow.astype(np.float32),
+        pc1 = s.pc1.astype(np.float64)
+        moved = pc1 if speed_scale == 1.0 else transform_points(speed_scaled_view(s.T, speed_scale), pc1)
+        out.append(SceneFlowSample(name=f"{tag}{i:05d}", pc1=moved.astype(np.float32), pc2=s.pc2.astype(np.float32),
+                                   flow=(pc1 + s.gt_flow - moved).astype(np.float32),
                                    moving=None if s.moving is None else np.asarray(s.moving, bool)))
     return out
 
@@ -84,6 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-scenes", type=int, default=40)
     p.add_argument("--per-level", action="store_true",
                    help="also the ego-motion of every level's flow (coarsest first), on the LiDAR splits")
+    p.add_argument("--speed-scales", default="",
+                   help="comma list of factors: also the camera-cloud pairs (cam-test, else cam-val) with the "
+                        "camera's motion rescaled by each")
     args = p.parse_args(argv)
 
     from benchmarks.learning_curve import score_splits
@@ -101,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     splits = {"cam-val": cache_samples(reader, val[: args.max_scenes], "v")}
     if args.test_cache:
         splits["cam-test"] = cache_samples(CacheReader(args.test_cache), None, "t")[: args.max_scenes]
+    for factor in filter(None, args.speed_scales.split(",")):
+        base, source = ("cam-test", CacheReader(args.test_cache)) if args.test_cache else ("cam-val", reader)
+        picked = None if args.test_cache else val[: args.max_scenes]
+        splits[f"{base}x{factor}"] = cache_samples(source, picked, "s", float(factor))[: args.max_scenes]
     for item in args.split:
         name, folder = item.split("=", 1)
         splits[name] = list(load_split(folder, "auto"))[: args.max_scenes]
@@ -117,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg; mean signed error "
                   f"t ({e['dt_x']:+.3f}, {e['dt_y']:+.3f}, {e['dt_z']:+.3f}) m, pitch {e['dr_pitch']:+.3f}, "
                   f"yaw {e['dr_yaw']:+.3f}, roll {e['dr_roll']:+.3f} deg", flush=True)
-        if args.per_level and name not in ("cam-val", "cam-test"):
+        if args.per_level and not name.startswith("cam-"):
             for net in nets:
                 print_levels(net, name, split, cfg)
     return 0
