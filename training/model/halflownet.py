@@ -28,6 +28,7 @@ import torch
 from torch import Tensor, nn
 
 from core.errors import InputError
+from training.model.coarse_match import SoftTranslation
 from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
 from training.model.ego_motion import rigid_plus_residual
@@ -79,6 +80,8 @@ class HALFlowNet(nn.Module):
         c3_flow = self.sa3_flow.out_channels
         self.up3 = SetUpConv(c3_flow, self.sa4.out_channels, cfg.upconv_k, w(256, 256, 512), w(512), nm, kb)
         self.head3_coarse = FlowHead(self.up3.out_channels)
+        if cfg.coarse_match:  # a measured coarse translation (a departure, HALFlowConfig.coarse_match)
+            self.coarse_translation = SoftTranslation(c2, sigma_m=cfg.coarse_match_sigma_m)
         self.cost3 = AttentiveCostVolume(c3, w(512, 256, 256), w(512, 256), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
         self.refine3 = FlowRefiner(c3_flow, self.cost3.out_channels, self.up3.out_channels, w(512, 256, 256), nm)
         self.head3 = FlowHead(self.refine3.out_channels)
@@ -254,6 +257,8 @@ class HALFlowNet(nn.Module):
         # L3: coarse flow from the upconv features, warp, cost volume, residual refinement.
         up = self.up3(xyz1_3, xyz1_4, feat1_3, feat1_4)
         coarse = self.head3_coarse(up)
+        if cfg.coarse_match:
+            coarse = coarse + self.coarse_translation(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])[:, None]
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
         flow, rigid = self._ego(xyz1_3, coarse + self.head3(hidden))

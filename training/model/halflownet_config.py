@@ -36,6 +36,11 @@ class HALFlowConfig:
         on), a cost volume against frame 2's L0 points (refine_k / cost_k_pc1 neighbours), a residual flow.
         HALFlowNet matches last at L1; at small inputs (the demo's 2048 points: L1 = 256) that is coarser
         than the L0 points that are scored. False = the paper's form (L0 by feature propagation alone).
+    coarse_match: add to the coarsest (L3) flow a camera translation measured by soft matching of the two
+        clouds' L2 points (:mod:`training.model.coarse_match`), whose response to a shift is one by
+        construction, so that the regressed coarse flow only corrects it; false = the paper's form (the
+        coarse flow regressed alone). A departure (docs/learned-flow.md, ninth round).
+    coarse_match_sigma_m: metres; the distance prior of that matching (twice KITTI's largest motion per frame).
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -70,6 +75,8 @@ class HALFlowConfig:
     norm: str = "batch"
     center_input: bool = True
     l0_cost_volume: bool = False
+    coarse_match: bool = False
+    coarse_match_sigma_m: float = 5.0
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -92,6 +99,8 @@ class HALFlowConfig:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
         if min(self.level_k) < 1:
             raise ConfigError(f"level_k must be >= 1, got {self.level_k}")
+        if not self.coarse_match_sigma_m > 0:
+            raise ConfigError(f"coarse_match_sigma_m must be > 0, got {self.coarse_match_sigma_m}")
         if not self.width_scale > 0:
             raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
         if self.sampling not in ("fps", "random"):
