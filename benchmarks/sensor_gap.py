@@ -51,21 +51,25 @@ def cache_samples(reader, indices: list[int] | None, tag: str, speed_scale: floa
     return out
 
 
+def static_motion(points: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid motion (R (3, 3), t (3,), metres) that best maps ``points`` onto ``points + flow``
+    (unweighted Kabsch, float64)."""
+    import torch
+
+    from training.model.ego_motion import weighted_rigid_fit
+
+    t = lambda x: torch.tensor(x[None], dtype=torch.float64)  # noqa: E731
+    R, tr = weighted_rigid_fit(t(points), t(points + flow), torch.ones(1, len(points), dtype=torch.float64))
+    return R[0].numpy(), tr[0].numpy()
+
+
 def ego_errors(method, split, cfg) -> dict[str, float]:
     """Mean |t_true|, |t_net|, translation error (m) and rotation error (degrees) of the rigid motion fitted
     to the net's flow and to the true flow on each scene's static points, and the signed mean error per
     axis: ``dt_x``, ``dt_y``, ``dt_z`` (m, net − true, camera-1 → camera-2 frame) and ``dr_pitch``,
     ``dr_yaw``, ``dr_roll`` (degrees, Euler angles of ``R_trueᵀ R_net`` about x, y, z)."""
-    import torch
-
     from core.geometry import matrix_to_euler, rotation_angle
     from evaluation.protocols import prepare_scene
-    from training.model.ego_motion import weighted_rigid_fit
-
-    def fit(p, f):
-        t = lambda x: torch.tensor(x[None], dtype=torch.float64)  # noqa: E731
-        R, tr = weighted_rigid_fit(t(p), t(p + f), torch.ones(1, len(p), dtype=torch.float64))
-        return R[0].numpy(), tr[0].numpy()
 
     rows = []
     for sample in split:
@@ -74,8 +78,8 @@ def ego_errors(method, split, cfg) -> dict[str, float]:
         scene = prepare_scene(sample, cfg, cfg.seeds[0])
         flow = method(scene.pc1, scene.pc2)
         static = ~sample.moving[scene.index1]
-        Rg, tg = fit(scene.pc1[static], sample.flow[scene.index1][static])
-        Rn, tn = fit(scene.pc1[static], flow[static])
+        Rg, tg = static_motion(scene.pc1[static], sample.flow[scene.index1][static])
+        Rn, tn = static_motion(scene.pc1[static], flow[static])
         rows.append([np.linalg.norm(tg), np.linalg.norm(tn), np.linalg.norm(tn - tg),
                      np.degrees(float(rotation_angle(Rg.T @ Rn))), *(tn - tg),
                      *np.degrees(matrix_to_euler(Rg.T @ Rn))])
@@ -111,11 +115,13 @@ def main(argv: list[str] | None = None) -> int:
     reader = CacheReader(args.cache)
     _, val = train_val_split(reader, held["val_fraction"], held["val_pairs_max"])
     splits = {"cam-val": cache_samples(reader, val[: args.max_scenes], "v")}
-    if args.test_cache:
-        splits["cam-test"] = cache_samples(CacheReader(args.test_cache), None, "t")[: args.max_scenes]
+    test_reader = CacheReader(args.test_cache) if args.test_cache else None
+    if test_reader is not None:
+        splits["cam-test"] = cache_samples(test_reader, None, "t")[: args.max_scenes]
+    # the speed-scaled pairs: the test sequence's camera clouds when given, else the held-out training pairs
+    base, source, picked = (("cam-test", test_reader, None) if test_reader is not None
+                            else ("cam-val", reader, val[: args.max_scenes]))
     for factor in filter(None, args.speed_scales.split(",")):
-        base, source = ("cam-test", CacheReader(args.test_cache)) if args.test_cache else ("cam-val", reader)
-        picked = None if args.test_cache else val[: args.max_scenes]
         splits[f"{base}x{factor}"] = cache_samples(source, picked, "s", float(factor))[: args.max_scenes]
     for item in args.split:
         name, folder = item.split("=", 1)

@@ -62,9 +62,7 @@ def test_per_level_report_has_one_line_per_level_coarsest_first(tmp_path, capsys
 def test_speed_scaled_camera_pairs_keep_the_targets_and_scale_the_motion():
     from types import SimpleNamespace
 
-    from benchmarks.sensor_gap import cache_samples
-    from training.model.ego_motion import weighted_rigid_fit
-    import torch
+    from benchmarks.sensor_gap import cache_samples, static_motion
 
     (sample,), T = _split(300)
     pair = SimpleNamespace(pc1=sample.pc1, pc2=sample.pc2, gt_flow=sample.flow, moving=sample.moving, T=T)
@@ -75,7 +73,5 @@ def test_speed_scaled_camera_pairs_keep_the_targets_and_scale_the_motion():
     assert np.allclose(doubled.pc1 + doubled.flow, sample.pc1 + sample.flow, atol=1e-4)
     assert np.array_equal(doubled.pc2, sample.pc2)
     static = ~sample.moving
-    t = lambda x: torch.tensor(x[None], dtype=torch.float64)  # noqa: E731
-    _, tr = weighted_rigid_fit(t(doubled.pc1[static]), t((doubled.pc1 + doubled.flow)[static]),
-                               torch.ones(1, int(static.sum()), dtype=torch.float64))
-    assert np.allclose(tr[0].numpy(), 2.0 * T[:3, 3], atol=1e-3)  # the static motion is twice the pair's
+    _, tr = static_motion(doubled.pc1[static].astype(np.float64), doubled.flow[static].astype(np.float64))
+    assert np.allclose(tr, 2.0 * T[:3, 3], atol=1e-3)  # the static motion is twice the pair's
