@@ -170,6 +170,12 @@ def _fgr() -> FlowMethod:
     return BaselineMethod(FGRBaseline())
 
 
+def _tvote() -> FlowMethod:
+    from evaluation.baselines.translation_vote import TranslationVoteBaseline
+
+    return BaselineMethod(TranslationVoteBaseline())
+
+
 def _nsfp() -> FlowMethod:
     from evaluation.optimise import NSFPMethod
 
@@ -194,6 +200,7 @@ _METHODS: dict[str, MethodEntry] = {
     "icp-p2p": MethodEntry(lambda: _icp("point_to_point")),
     "icp-p2l": MethodEntry(lambda: _icp("point_to_plane")),
     "fgr": MethodEntry(_fgr),
+    "tvote": MethodEntry(_tvote, note="one translation voted from all point-pair offsets"),
     "nsfp": MethodEntry(_nsfp),
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
     "view-prune": MethodEntry(_view_pruned, wraps=True,

@@ -37,6 +37,7 @@ from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stat
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
+from training.model.translation_vote import VoteConfig, vote_translation
 from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
 
 @dataclass
@@ -237,6 +238,12 @@ class HALFlowNet(nn.Module):
         else:
             p1, p2 = self._encode(x1, feat1, given1), self._encode(x2, feat2, given2)
 
+        shift = None
+        if cfg.translation_vote:  # pre-align frame 2 by the voted camera translation (encoder features are
+            # built from neighbour offsets, so they do not change; every flow gets the shift back at the end)
+            shift = vote_translation(p1.xyz[0], p2.xyz[0], VoteConfig(max_translation_m=cfg.translation_vote_max_m))
+            p2.xyz = [x - shift[:, None] for x in p2.xyz]
+
         n3, n4 = cfg.level_points[3], cfg.level_points[4]
         xyz2_3, feat2_3, s = self._down(self.sa3_pc2, p2.xyz[2], p2.feat[2], n3, given2[3])
         p2.xyz.append(xyz2_3)
@@ -288,6 +295,9 @@ class HALFlowNet(nn.Module):
         flows.insert(0, flow)
         rigids.insert(0, rigid)
 
+        if shift is not None:
+            flows = [f + shift[:, None] for f in flows]
+            rigids = [r if r is None else r + shift[:, None] for r in rigids]
         idx1, idx2 = p1.idx[:4], p2.idx[:4]
         return FlowOutput(
             flows=flows,

@@ -41,6 +41,12 @@ class HALFlowConfig:
         construction, so that the regressed coarse flow only corrects it; false = the paper's form (the
         coarse flow regressed alone). A departure (docs/learned-flow.md, ninth round).
     coarse_match_sigma_m: metres; the distance prior of that matching (twice KITTI's largest motion per frame).
+    translation_vote: before the first embedding, shift frame 2's points back by the camera translation that
+        a vote over all offsets between the two clouds' L0 points finds (:mod:`training.model.translation_vote`,
+        no learning, no gradient), and add it to every output flow: the net regresses the flow left after
+        that pre-alignment, and its response to a change of speed is one as far as the vote is right;
+        false = the paper's form. A departure (docs/learned-flow.md, tenth round).
+    translation_vote_max_m: metres; the vote's search cube is ±this along every camera axis.
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -77,6 +83,8 @@ class HALFlowConfig:
     l0_cost_volume: bool = False
     coarse_match: bool = False
     coarse_match_sigma_m: float = 5.0
+    translation_vote: bool = False
+    translation_vote_max_m: float = 3.0
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -101,6 +109,8 @@ class HALFlowConfig:
             raise ConfigError(f"level_k must be >= 1, got {self.level_k}")
         if not self.coarse_match_sigma_m > 0:
             raise ConfigError(f"coarse_match_sigma_m must be > 0, got {self.coarse_match_sigma_m}")
+        if not self.translation_vote_max_m > 0:
+            raise ConfigError(f"translation_vote_max_m must be > 0, got {self.translation_vote_max_m}")
         if not self.width_scale > 0:
             raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
         if self.sampling not in ("fps", "random"):

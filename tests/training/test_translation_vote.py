@@ -1,0 +1,97 @@
+"""The translation vote (training/model/translation_vote.py) and HALFlowConfig.translation_vote."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.errors import ConfigError
+from training.config import level_points_for
+from training.model.halflownet import HALFlowNet
+from training.model.halflownet_config import HALFlowConfig
+from training.model.translation_vote import VoteConfig, vote_translation
+
+
+def _street(n: int, seed: int = 0) -> torch.Tensor:
+    """(1, n, 3) points on a few walls and poles, metres (camera frame: x right, y down, z forward)."""
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, 3, generator=g)
+    kind = torch.arange(n) % 3
+    wall_left = torch.stack([torch.full((n,), -6.0), 2 * u[:, 1] - 1, 5 + 30 * u[:, 2]], -1)
+    facade = torch.stack([-6 + 12 * u[:, 0], 2 * u[:, 1] - 1, torch.full((n,), 30.0)], -1)
+    poles = torch.stack([4 + (u[:, 0] * 4).floor(), 2 * u[:, 1] - 1, 8 + 5 * (u[:, 2] * 4).floor()], -1)
+    return torch.where(kind[:, None] == 0, wall_left, torch.where(kind[:, None] == 1, facade, poles))[None]
+
+
+@pytest.mark.parametrize("shift", [(0.0, 0.0, -0.6), (0.05, 0.0, -1.2), (0.3, -0.1, -2.4)])
+def test_a_shifted_cloud_is_found_at_every_speed(shift):
+    pc1 = _street(600)
+    t = torch.tensor(shift)
+    pc2 = pc1[:, torch.randperm(600, generator=torch.Generator().manual_seed(1))] + t  # order does not matter
+    assert torch.allclose(vote_translation(pc1, pc2)[0], t, atol=0.02)
+
+
+def test_the_static_majority_wins_over_a_mover():
+    pc1 = _street(900)
+    t, t_car = torch.tensor([0.0, 0.0, -1.2]), torch.tensor([0.0, 0.0, 0.8])
+    car = torch.rand(1, 300, 3, generator=torch.Generator().manual_seed(2)) * torch.tensor([2.0, 1.5, 4.0])
+    car = car + torch.tensor([1.0, -0.5, 12.0])
+    pc1_all = torch.cat([pc1, car], 1)
+    pc2_all = torch.cat([pc1 + t, car + t_car], 1)
+    assert torch.allclose(vote_translation(pc1_all, pc2_all)[0], t, atol=0.02)
+
+
+def test_offsets_outside_the_search_cube_give_zero():
+    pc1 = torch.zeros(1, 4, 3)
+    far = pc1 + torch.tensor([0.0, 0.0, 50.0])
+    assert torch.equal(vote_translation(pc1, far, VoteConfig(max_translation_m=3.0)), torch.zeros(1, 3))
+
+
+def test_a_bad_search_is_refused():
+    with pytest.raises(ValueError):
+        VoteConfig(cell_m=0.0)
+    with pytest.raises(ConfigError):
+        HALFlowConfig(translation_vote_max_m=-1.0)
+
+
+def _cfg(**kw) -> HALFlowConfig:
+    return HALFlowConfig(n_points=512, level_points=level_points_for(512), width_scale=0.25, feature_dim=0,
+                         norm="layer", **kw)
+
+
+def test_the_net_with_the_switch_follows_a_change_of_speed_exactly_and_trains():
+    torch.manual_seed(0)
+    net = HALFlowNet(_cfg(translation_vote=True)).eval()
+    pc1 = _street(512)
+    slow, fast = torch.tensor([0.0, 0.0, -0.6]), torch.tensor([0.0, 0.0, -1.8])
+    with torch.no_grad():
+        a, b = net(pc1, pc1 + slow), net(pc1, pc1 + fast)
+    for fa, fb in zip(a.flows, b.flows):  # the same residual problem, so the flows differ by the shift
+        assert torch.allclose(fb - fa, (fast - slow).expand_as(fa), atol=0.02)
+    net.train()
+    out = net(pc1, pc1 + fast)
+    sum(f.abs().mean() for f in out.flows).backward()
+    assert all(p.grad is not None for p in net.head3_coarse.parameters())
+
+
+def test_without_the_switch_the_net_is_the_papers_form(monkeypatch):
+    def refuse(*_args, **_kw):
+        raise AssertionError("the vote ran with the switch off")
+
+    monkeypatch.setattr("training.model.halflownet.vote_translation", refuse)
+    pc1 = _street(512)
+    out = HALFlowNet(_cfg()).eval()(pc1, pc1 + torch.tensor([0.0, 0.0, -1.0]))
+    assert out.flows[0].shape == (1, level_points_for(512)[0], 3)
+    with pytest.raises(AssertionError, match="switch off"):
+        HALFlowNet(_cfg(translation_vote=True)).eval()(pc1, pc1)
+
+
+def test_the_tvote_baseline_gives_every_point_the_voted_translation():
+    from evaluation.methods import make_baseline
+
+    pc1 = _street(400).numpy()[0]
+    t = np.array([0.1, 0.0, -1.5], np.float32)
+    flow = make_baseline("tvote")(pc1, pc1[::-1] + t, None, None)
+    assert flow.shape == pc1.shape and flow.dtype == np.float32
+    np.testing.assert_allclose(flow, np.broadcast_to(t, pc1.shape), atol=0.02)
