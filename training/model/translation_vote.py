@@ -9,16 +9,25 @@ density is the kernel correlation of the two clouds as a function of the shift (
 kernel-correlation registration), computed here for all shifts at once:
 
 1. vote: a histogram of the offsets inside the search cube ``|d|_∞ ≤ max_translation_m`` with cells of
-   ``cell_m``, smoothed by a 3×3×3 binomial kernel; its fullest cell is the global mode (no initial
-   guess, unlike ICP);
-2. refine: mean shift of that mode over the offsets with Gaussian kernels of shrinking widths
-   ``bandwidths_m``, ``t ← Σ_ij w_ij d_ij / Σ_ij w_ij``, ``w_ij = exp(−‖d_ij − t‖² / 2h²)``.
+   ``cell_m``, smoothed by a 3×3×3 binomial kernel; its ``candidates`` fullest local maxima are the
+   hypotheses (no initial guess, unlike ICP);
+2. refine each hypothesis by translation-only trimmed matching with shrinking radii ``bandwidths_m``:
+   every frame-1 point takes its nearest frame-2 point after the shift, those within the radius are
+   inliers, and ``t ← mean(q_nn(i) − p_i)`` over the inliers;
+3. keep the hypothesis under which the most frame-1 points find a frame-2 point within their own
+   sampling spacing (the distance to their nearest frame-1 neighbour, at least the last radius).
 
-Movers vote for their own offsets and lose to the static majority; a rotation spreads the static
-votes (by the rotation angle times the distance), which the wide first bandwidth absorbs. The result
-has no gradient: it serves :class:`~training.model.halflownet.HALFlowNet` (``model.translation_vote``)
-as a pre-alignment whose response to a change of speed is one by construction, and the ``tvote``
-baseline of :mod:`evaluation.methods` as a rigid-translation registration.
+Step 3 is there because the histogram counts *pairs*: a dense mover close to the camera (a car driving
+ahead at about the camera's speed, near zero offset) can outvote the static scene, which covers more
+of the view but is sampled more sparsely. Counting each frame-1 point once, with a radius that grows
+with its sampling spacing, lets the static majority win where it is a majority (measured on training
+caches, not test splits: docs/learned-flow.md, tenth round). In dense traffic, where the movers are
+the majority, the vote returns their motion, and the net's residual has to correct it.
+A rotation spreads the static votes (by the rotation angle times the distance), which the wide first
+radius absorbs. The result has no gradient: it serves :class:`~training.model.halflownet.HALFlowNet`
+(``model.translation_vote``) as a pre-alignment whose response to a change of speed is one by
+construction, and the ``tvote`` baseline of :mod:`evaluation.methods` as a rigid-translation
+registration.
 """
 
 from __future__ import annotations
@@ -36,17 +45,20 @@ class VoteConfig:
     max_translation_m: half the side of the search cube around zero offset (twice KITTI's largest
         motion per frame at 10 Hz, about 2.5 m, would be 5; 3 covers 100 km/h).
     cell_m: the histogram's cell size.
-    bandwidths_m: mean-shift kernel widths, widest first, two rounds each.
+    bandwidths_m: inlier radii of the refinement, widest first, two rounds each; the last one also
+        scores the hypotheses.
+    candidates: how many histogram maxima are refined and scored (1 = the fullest cell alone).
     """
 
     max_translation_m: float = 3.0
     cell_m: float = 0.25
     bandwidths_m: tuple[float, ...] = (0.5, 0.25, 0.1)
+    candidates: int = 4
 
     def __post_init__(self) -> None:
         if not (self.max_translation_m > 0 and self.cell_m > 0 and self.bandwidths_m
-                and all(h > 0 for h in self.bandwidths_m)):
-            raise ValueError(f"need a positive max_translation_m, cell_m and bandwidths_m, got {self}")
+                and all(h > 0 for h in self.bandwidths_m) and self.candidates >= 1):
+            raise ValueError(f"need a positive max_translation_m, cell_m, bandwidths_m and candidates, got {self}")
 
 
 def _binomial_blur(grid: Tensor) -> Tensor:
@@ -54,6 +66,34 @@ def _binomial_blur(grid: Tensor) -> Tensor:
     k = torch.tensor([0.25, 0.5, 0.25], dtype=grid.dtype, device=grid.device)
     kernel = (k[:, None, None] * k[None, :, None] * k[None, None, :])[None, None]
     return torch.nn.functional.conv3d(grid[:, None], kernel, padding=1)[:, 0]
+
+
+def _refine(x1: Tensor, x2: Tensor, t: Tensor, radii: tuple[float, ...]) -> tuple[Tensor, Tensor]:
+    """Trimmed nearest-neighbour refinement of translations ``t`` (B, K, 3) of ``x1`` (B, M, 3) onto
+    ``x2`` (B, N, 3); returns the refined ``t`` and, per hypothesis, how many frame-1 points have a
+    frame-2 point within their own sampling spacing (the distance to their nearest frame-1 neighbour,
+    at least the last radius) after the shift (B, K): a sparse far point counts as matched as readily
+    as a dense near one, so the count measures how much of the scene a shift explains."""
+    B, K = t.shape[:2]
+    a = x1[:, None].expand(B, K, *x1.shape[1:]).reshape(B * K, -1, 3)
+    b = x2[:, None].expand(B, K, *x2.shape[1:]).reshape(B * K, -1, 3)
+    t = t.reshape(B * K, 3)
+    count = torch.zeros(B * K, dtype=x1.dtype, device=x1.device)
+    for h in radii:
+        for _ in range(2):
+            dist, nn = torch.cdist(a + t[:, None], b).min(dim=2)
+            inlier = (dist < h).to(x1.dtype)
+            count = inlier.sum(1)
+            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
+            mean = ((q - a) * inlier[..., None]).sum(1) / count.clamp_min(1)[:, None]
+            t = torch.where(count[:, None] > 0, mean, t)
+    self_d = torch.cdist(x1, x1)
+    self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
+    spacing = self_d.min(dim=2).values.clamp_min(radii[-1])  # (B, M)
+    spacing = spacing[:, None].expand(B, K, -1).reshape(B * K, -1)
+    dist = torch.cdist(a + t[:, None], b).min(dim=2).values
+    count = (dist < spacing).to(x1.dtype).sum(1)
+    return t.reshape(B, K, 3), count.reshape(B, K)
 
 
 @torch.no_grad()
@@ -70,15 +110,17 @@ def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = Non
     inside = ((cell >= 0) & (cell < n)).all(dim=-1)
     flat = (cell[..., 0] * n + cell[..., 1]) * n + cell[..., 2]
     flat = torch.where(inside, flat, torch.zeros_like(flat))
+    del d, cell
     counts = torch.zeros(B, n * n * n, dtype=x1.dtype, device=x1.device)
     counts.scatter_add_(1, flat, inside.to(x1.dtype))
-    best = _binomial_blur(counts.reshape(B, n, n, n)).reshape(B, -1).argmax(dim=1)
+    grid = _binomial_blur(counts.reshape(B, n, n, n))
+    peak = grid == torch.nn.functional.max_pool3d(grid[:, None], 3, stride=1, padding=1)[:, 0]
+    score = torch.where(peak, grid, torch.full_like(grid, -1.0)).reshape(B, -1)
+    k = min(cfg.candidates, score.shape[1])
+    best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
     ix, iy, iz = best // (n * n), (best // n) % n, best % n
     t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
+    t, matched = _refine(x1, x2, t, cfg.bandwidths_m)
+    t = t[torch.arange(B), matched.argmax(dim=1)]
     t = torch.where(inside.any(dim=1, keepdim=True), t, torch.zeros_like(t))
-    for h in cfg.bandwidths_m:
-        for _ in range(2):
-            w = torch.exp(-((d - t[:, None]) ** 2).sum(-1) / (2 * h * h)) * inside
-            t = torch.where(w.sum(1, keepdim=True) > 0,
-                            (w[..., None] * d).sum(1) / w.sum(1, keepdim=True).clamp_min(1e-30), t)
     return t.to(xyz1.dtype)
