@@ -1,0 +1,93 @@
+"""How good the camera translation of the translation vote is, on the points the net would see.
+
+For every pair: ``--n-points`` random points of each cloud, then the net's level-0 sample (farthest-point
+sampling to ``--level-points``), the vote (:func:`training.model.translation_vote.vote_translation`) on
+those, and its error against the true flow of the static points (mean ‖flow − t‖ over the static points of
+the random sample, metres; the rotation's share of the static flow stays in it). Pairs whose error is over
+``--fail-m`` are counted as failures: the vote locked onto a mover or a wrong mode. Sources are labelled
+stage-one caches (``--cache``: camera clouds, stage one's flow from the given poses) and scene-flow splits
+(``--split NAME=FOLDER``). ``--candidates 1`` scores the fullest histogram cell alone, for comparison.
+
+Used for docs/learned-flow.md (tenth round), on training caches rather than test splits::
+
+    python -m benchmarks.vote_accuracy --cache w/cache/world/<hash> --pairs 40 --candidates 1,4
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed: int = 0) -> np.ndarray:
+    """Per pair, the mean static-point error of the voted translation (metres); ``samples`` yield
+    :class:`evaluation.sample.SceneFlowSample`."""
+    import torch
+
+    from training.model.translation_vote import VoteConfig, vote_translation
+    from training.pointops import farthest_point_sample, gather_points
+
+    rng = np.random.default_rng(seed)
+    cfg = VoteConfig(candidates=candidates)
+    out = []
+    for s in samples:
+        i1 = rng.choice(len(s.pc1), min(n_points, len(s.pc1)), replace=False)
+        i2 = rng.choice(len(s.pc2), min(n_points, len(s.pc2)), replace=False)
+        p1, p2 = (torch.from_numpy(np.ascontiguousarray(x)).float()[None] for x in (s.pc1[i1], s.pc2[i2]))
+        a = gather_points(p1, farthest_point_sample(p1, min(level_points, p1.shape[1])))
+        b = gather_points(p2, farthest_point_sample(p2, min(level_points, p2.shape[1])))
+        t = vote_translation(a, b, cfg)[0].numpy()
+        static = np.ones(len(i1), bool) if s.moving is None else ~np.asarray(s.moving, bool)[i1]
+        if static.any():
+            out.append(float(np.linalg.norm(s.flow[i1][static] - t, axis=1).mean()))
+    return np.asarray(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="vote_accuracy", description=__doc__.split("\n\n")[0])
+    p.add_argument("--cache", action="append", default=[], help="stage-one cache folder (labelled pairs)")
+    p.add_argument("--split", action="append", default=[], help="NAME=FOLDER of a scene-flow test split")
+    p.add_argument("--pairs", type=int, default=40, help="cache pairs, evenly spaced (0 = all)")
+    p.add_argument("--n-points", type=int, default=2048)
+    p.add_argument("--level-points", type=int, default=512)
+    p.add_argument("--candidates", default="1,4", help="comma list of VoteConfig.candidates to compare")
+    p.add_argument("--fail-m", type=float, default=0.5)
+    p.add_argument("--threads", type=int, default=1)
+    args = p.parse_args(argv)
+
+    import torch
+
+    from benchmarks.sensor_gap import cache_samples
+    from core.errors import InputError
+    from evaluation.readers.split import load_split
+    from pipeline.cache import CacheReader
+
+    torch.set_num_threads(args.threads)
+    sources: dict[str, list] = {}
+    try:
+        for path in args.cache:
+            reader = CacheReader(path)
+            step = 1 if args.pairs <= 0 else max(1, len(reader) // args.pairs)
+            sources[f"cache {path}"] = cache_samples(reader, list(range(0, len(reader), step)), "c")
+        for item in args.split:
+            name, _, folder = item.partition("=")
+            if not folder:
+                p.error(f"--split needs NAME=FOLDER, got {item!r}")
+            sources[name] = list(load_split(folder))
+    except InputError as exc:
+        print(f"vote_accuracy: {exc}")
+        return 2
+    if not sources:
+        p.error("give at least one --cache or --split")
+    print(f"| source | candidates | pairs | mean static error (m) | median | failures (> {args.fail_m} m) |")
+    print("|---|---|---|---|---|---|")
+    for name, samples in sources.items():
+        for k in (int(c) for c in args.candidates.split(",")):
+            e = vote_errors(samples, args.n_points, args.level_points, k)
+            print(f"| {name} | {k} | {len(e)} | {e.mean():.3f} | {np.median(e):.3f} | {int((e > args.fail_m).sum())} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
