@@ -14,7 +14,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     at 256), a per-point layer norm instead of batch norm (``model.norm``) with the ego-motion term
     (``loss.ego_motion``: the head's rigid motion against stage one's static flow), the camera-to-LiDAR
     augmentations and camera speeds rescaled ×½ … ×2 (``data.ego_speed_scale``; docs/learned-flow.md,
-    seventh and eighth rounds); ``overrides`` are dotted ``{"model.ego_head": False}``
+    seventh and eighth rounds), and frame 2 pre-aligned by the voted camera translation
+    (``model.translation_vote``, tenth round); ``overrides`` are dotted ``{"model.ego_head": False}``
     pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
@@ -27,6 +28,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "optim": {"batch_size": 4},
         "loss": {"ego_motion": 1.0},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
-                  "ego_head": True, "l0_cost_volume": True, "norm": "layer"},
+                  "ego_head": True, "l0_cost_volume": True, "norm": "layer",
+                  "translation_vote": True},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")
