@@ -45,8 +45,8 @@ class VoteConfig:
     max_translation_m: half the side of the search cube around zero offset (twice KITTI's largest
         motion per frame at 10 Hz, about 2.5 m, would be 5; 3 covers 100 km/h).
     cell_m: the histogram's cell size.
-    bandwidths_m: inlier radii of the refinement, widest first, two rounds each; the last one also
-        scores the hypotheses.
+    bandwidths_m: inlier radii of the refinement, widest first, two rounds each; the last one is also
+        the smallest matching radius when the hypotheses are scored.
     candidates: how many histogram maxima are refined and scored (1 = the fullest cell alone).
     """
 
@@ -78,7 +78,6 @@ def _refine(x1: Tensor, x2: Tensor, t: Tensor, radii: tuple[float, ...]) -> tupl
     a = x1[:, None].expand(B, K, *x1.shape[1:]).reshape(B * K, -1, 3)
     b = x2[:, None].expand(B, K, *x2.shape[1:]).reshape(B * K, -1, 3)
     t = t.reshape(B * K, 3)
-    count = torch.zeros(B * K, dtype=x1.dtype, device=x1.device)
     for h in radii:
         for _ in range(2):
             dist, nn = torch.cdist(a + t[:, None], b).min(dim=2)
