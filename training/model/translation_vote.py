@@ -68,31 +68,26 @@ def _binomial_blur(grid: Tensor) -> Tensor:
     return torch.nn.functional.conv3d(grid[:, None], kernel, padding=1)[:, 0]
 
 
-def _refine(x1: Tensor, x2: Tensor, t: Tensor, radii: tuple[float, ...]) -> tuple[Tensor, Tensor]:
-    """Trimmed nearest-neighbour refinement of translations ``t`` (B, K, 3) of ``x1`` (B, M, 3) onto
-    ``x2`` (B, N, 3); returns the refined ``t`` and, per hypothesis, how many frame-1 points have a
-    frame-2 point within their own sampling spacing (the distance to their nearest frame-1 neighbour,
-    at least the last radius) after the shift (B, K): a sparse far point counts as matched as readily
-    as a dense near one, so the count measures how much of the scene a shift explains."""
-    B, K = t.shape[:2]
-    a = x1[:, None].expand(B, K, *x1.shape[1:]).reshape(B * K, -1, 3)
-    b = x2[:, None].expand(B, K, *x2.shape[1:]).reshape(B * K, -1, 3)
-    t = t.reshape(B * K, 3)
+def _refine(a: Tensor, b: Tensor, t: Tensor, radii: tuple[float, ...]) -> Tensor:
+    """Translations ``t`` (H, 3) of ``a`` (H, M, 3) onto ``b`` (H, N, 3), one per hypothesis, refined by
+    trimmed nearest-neighbour matching: two rounds per radius, widest first, each
+    ``t ← mean(q_nn(i) − p_i)`` over the points whose nearest neighbour lies within the radius."""
     for h in radii:
         for _ in range(2):
             dist, nn = torch.cdist(a + t[:, None], b).min(dim=2)
-            inlier = (dist < h).to(x1.dtype)
+            inlier = (dist < h).to(a.dtype)
             count = inlier.sum(1)
             q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
             mean = ((q - a) * inlier[..., None]).sum(1) / count.clamp_min(1)[:, None]
             t = torch.where(count[:, None] > 0, mean, t)
-    self_d = torch.cdist(x1, x1)
-    self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
-    spacing = self_d.min(dim=2).values.clamp_min(radii[-1])  # (B, M)
-    spacing = spacing[:, None].expand(B, K, -1).reshape(B * K, -1)
-    dist = torch.cdist(a + t[:, None], b).min(dim=2).values
-    count = (dist < spacing).to(x1.dtype).sum(1)
-    return t.reshape(B, K, 3), count.reshape(B, K)
+    return t
+
+
+def _explained(a: Tensor, b: Tensor, t: Tensor, spacing: Tensor) -> Tensor:
+    """How many points of ``a`` (H, M, 3) have a point of ``b`` (H, N, 3) within their own ``spacing``
+    (H, M) after the shift ``t`` (H, 3): a sparse far point counts as readily as a dense near one, so the
+    count measures how much of the scene a shift explains."""
+    return (torch.cdist(a + t[:, None], b).min(dim=2).values < spacing).to(a.dtype).sum(1)
 
 
 @torch.no_grad()
@@ -119,7 +114,14 @@ def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = Non
     best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
     ix, iy, iz = best // (n * n), (best // n) % n, best % n
     t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
-    t, matched = _refine(x1, x2, t, cfg.bandwidths_m)
-    t = t[torch.arange(B), matched.argmax(dim=1)]
+    # every hypothesis against its own copy of the clouds, (B·k, ·, 3)
+    a = x1[:, None].expand(B, k, *x1.shape[1:]).reshape(B * k, -1, 3)
+    b = x2[:, None].expand(B, k, *x2.shape[1:]).reshape(B * k, -1, 3)
+    t = _refine(a, b, t.reshape(B * k, 3), cfg.bandwidths_m)
+    self_d = torch.cdist(x1, x1)  # each frame-1 point's sampling spacing, at least the last radius
+    self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
+    spacing = self_d.min(dim=2).values.clamp_min(cfg.bandwidths_m[-1])
+    matched = _explained(a, b, t, spacing[:, None].expand(B, k, -1).reshape(B * k, -1)).reshape(B, k)
+    t = t.reshape(B, k, 3)[torch.arange(B), matched.argmax(dim=1)]
     t = torch.where(inside.any(dim=1, keepdim=True), t, torch.zeros_like(t))
     return t.to(xyz1.dtype)
