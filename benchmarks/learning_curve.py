@@ -24,6 +24,8 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
+from benchmarks.named_folders import key_value, named_folder
+
 
 def _coerce(text: str):
     low = text.lower()
@@ -66,7 +68,8 @@ def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="learning_curve", description=__doc__.split("\n\n")[0])
     p.add_argument("--cache", required=True, help="stage-one cache folder")
-    p.add_argument("--split", action="append", required=True, help="NAME=FOLDER of a FlowNet3D-format test split")
+    p.add_argument("--split", action="append", required=True, type=named_folder,
+                   help="NAME=FOLDER of a FlowNet3D-format test split")
     p.add_argument("--out", required=True, help="run folder (resumes when it exists)")
     p.add_argument("--steps", default="500,1000,2000", help="comma list of milestones (optimiser steps)")
     p.add_argument("--seed", type=int, default=0)
@@ -81,11 +84,12 @@ def main(argv: list[str] | None = None) -> int:
                         "(model.eval_norm_stats), "
                         "'prune' (two-pass view pruning, evaluation/view_prune.py), 'polish' (rigid polish, "
                         "evaluation/rigid_polish.py; after 'prune' when both are given)")
-    p.add_argument("--set", nargs="*", default=[], help="dotted TrainConfig overrides key=value")
+    p.add_argument("--set", nargs="*", default=[], type=key_value, help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
     import torch
 
+    from core.errors import InputError
     from evaluation.methods import NetMethod, make_baseline
     from evaluation.rigid_polish import rigid_polished
     from evaluation.view_prune import view_pruned
@@ -95,14 +99,14 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    overrides = {k: _coerce(v) for k, v in args.set}
+    try:
+        splits = {name: load_split(folder, "auto") for name, folder in args.split}
+    except InputError as exc:
+        print(f"learning_curve: {exc}")
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    overrides = dict(kv.split("=", 1) for kv in args.set)
-    overrides = {k: _coerce(v) for k, v in overrides.items()}
-    splits = {}
-    for item in args.split:
-        name, folder = item.split("=", 1)
-        splits[name] = load_split(folder, "auto")
     milestones = sorted(int(s) for s in args.steps.split(","))
     run_dir = out / "run"
     rows: list[dict] = []

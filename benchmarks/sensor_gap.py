@@ -28,6 +28,8 @@ import argparse
 
 import numpy as np
 
+from benchmarks.named_folders import named_folder
+
 
 def cache_samples(reader, indices: list[int] | None, tag: str, speed_scale: float = 1.0) -> list:
     """Labelled camera-cloud pairs of a stage-one cache (a :class:`pipeline.cache.CacheReader`) as scene-flow
@@ -93,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", required=True, help="comma list of flow checkpoints")
     p.add_argument("--cache", required=True, help="the training cache (its held-out pairs are cam-val)")
     p.add_argument("--test-cache", help="stage one run on the test sequence (cam-test)")
-    p.add_argument("--split", action="append", default=[], help="NAME=FOLDER of a LiDAR scene-flow split")
+    p.add_argument("--split", action="append", default=[], type=named_folder,
+                   help="NAME=FOLDER of a LiDAR scene-flow split")
     p.add_argument("--max-scenes", type=int, default=40)
     p.add_argument("--per-level", action="store_true",
                    help="also the ego-motion of every level's flow (coarsest first), on the LiDAR splits")
@@ -103,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     from benchmarks.learning_curve import score_splits
+    from core.errors import InputError
     from evaluation.methods import NetMethod, make_baseline
     from evaluation.protocols import ProtocolConfig
     from evaluation.readers import load_split
@@ -123,9 +127,12 @@ def main(argv: list[str] | None = None) -> int:
                             else ("cam-val", reader, val[: args.max_scenes]))
     for factor in filter(None, args.speed_scales.split(",")):
         splits[f"{base}x{factor}"] = cache_samples(source, picked, "s", float(factor))[: args.max_scenes]
-    for item in args.split:
-        name, folder = item.split("=", 1)
-        splits[name] = list(load_split(folder, "auto"))[: args.max_scenes]
+    try:
+        for name, folder in args.split:
+            splits[name] = list(load_split(folder, "auto"))[: args.max_scenes]
+    except InputError as exc:
+        print(f"sensor_gap: {exc}")
+        return 2
     n_points, n_score = nets[0].n_points, nets[0].n_score
     scores = score_splits(nets + [make_baseline("icp-p2p"), make_baseline("fgr")], splits, n_points, n_score)
     cfg = ProtocolConfig(protocol="fps", n_points=n_points, n_score=n_score, seeds=(0,), warmup=False).validate()

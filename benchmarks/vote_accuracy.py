@@ -19,6 +19,8 @@ import argparse
 
 import numpy as np
 
+from benchmarks.named_folders import named_folder
+
 
 def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed: int = 0) -> np.ndarray:
     """Per pair, the mean static-point error of the voted translation (metres); ``samples`` yield
@@ -47,7 +49,8 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="vote_accuracy", description=__doc__.split("\n\n")[0])
     p.add_argument("--cache", action="append", default=[], help="stage-one cache folder (labelled pairs)")
-    p.add_argument("--split", action="append", default=[], help="NAME=FOLDER of a scene-flow test split")
+    p.add_argument("--split", action="append", default=[], type=named_folder,
+                   help="NAME=FOLDER of a scene-flow test split")
     p.add_argument("--pairs", type=int, default=40, help="cache pairs, evenly spaced (0 = all)")
     p.add_argument("--n-points", type=int, default=2048)
     p.add_argument("--level-points", type=int, default=512)
@@ -70,10 +73,7 @@ def main(argv: list[str] | None = None) -> int:
             reader = CacheReader(path)
             step = 1 if args.pairs <= 0 else max(1, len(reader) // args.pairs)
             sources[f"cache {path}"] = cache_samples(reader, list(range(0, len(reader), step)), "c")
-        for item in args.split:
-            name, _, folder = item.partition("=")
-            if not folder:
-                p.error(f"--split needs NAME=FOLDER, got {item!r}")
+        for name, folder in args.split:
             sources[name] = list(load_split(folder))
     except InputError as exc:
         print(f"vote_accuracy: {exc}")
