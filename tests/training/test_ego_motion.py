@@ -127,3 +127,19 @@ def test_planar_fit_is_exact_on_a_turn_and_drops_pitch_and_vertical_motion():
     assert all(r[..., 1].abs().max() == 0 for r in out.rigid_flows)  # no vertical camera motion at any level
     sum(f.square().mean() for f in out.flows).backward()
     assert all(torch.isfinite(q.grad).all() for q in net.parameters() if q.grad is not None)
+
+
+def test_open_gradient_keeps_the_output_and_reaches_the_own_flow_of_a_gated_point():
+    """``open_gradient``: the same output, and a point whose flow agrees with the ego-motion (gate ≈ 0) gets
+    the output's gradient in full on its own flow, where the gate alone passes almost none of it."""
+    p, gt, _, _ = _scene(noise=0.0, movers=0)
+    flow = gt.clone().requires_grad_(True)
+    gated, _, _, _ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4)
+    (g_gated,) = torch.autograd.grad(gated[0, 0, 0], flow)
+    opened, _, _, _ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, open_gradient=True)
+    (g_open,) = torch.autograd.grad(opened[0, 0, 0], flow)
+    assert torch.equal(gated, opened)
+    # gated: the point's own x flow enters only through the rigid fit over 600 points (about 1/600 of it)
+    assert abs(g_gated[0, 0, 0].item()) < 0.05
+    # opened: the straight-through adds (1 − m) ≈ 1 to it
+    assert g_open[0, 0, 0].item() > 0.95

@@ -75,7 +75,8 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
 
 
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
-                        mad_factor: float = 0.0, planar: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        mad_factor: float = 0.0, planar: bool = False,
+                        open_gradient: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -85,7 +86,11 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     ``max(sigma, mad_factor · 1.4826 · median residual)`` per cloud, re-estimated every round (the
     median absolute residual times 1.4826 estimates a Gaussian's σ robustly); ``iterations`` the
     re-weighting rounds; ``planar``: the motion is a turn about y and a translation in x–z
-    (:func:`weighted_planar_fit`).
+    (:func:`weighted_planar_fit`); ``open_gradient``: the output's value is unchanged, but every point's
+    own flow receives the output's gradient in full, also where the gate holds it at the rigid flow
+    (a straight-through gate: ``f' + (1 − m) ⊙ (f − sg(f))``, ``sg`` = stop-gradient). With the gate's
+    gradient alone (false), a point whose flow agrees with the ego-motion gets ``m ≈ 0`` of it, so a
+    mover whose flow starts at the camera's motion is never pushed away from it.
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -102,4 +107,7 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():
         gate = (r2 * r2 / (s2 * s2 + r2 * r2))[..., None]
-    return rigid + gate * (flow - rigid), R, t, weights
+    out = rigid + gate * (flow - rigid)
+    if open_gradient:
+        out = out + (1 - gate) * (flow - flow.detach())
+    return out, R, t, weights

@@ -60,6 +60,11 @@ class HALFlowConfig:
         the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
         degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
         thin slab of elevations, the 6-DoF fit trades pitch against vertical translation.
+    ego_open_gradient: the head's gate holds a point's flow at the fitted ego-motion's where the two agree,
+        and passes the loss's gradient to the point's own flow only in the gate's proportion, so a mover
+        whose flow starts at the camera's motion gets almost none of the Chamfer term's pull; true = every
+        point's own flow gets the whole gradient (straight-through), the output's value unchanged; false =
+        the gate's gradient (:func:`~training.model.ego_motion.rigid_plus_residual`).
     eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
         training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
         so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
@@ -90,6 +95,7 @@ class HALFlowConfig:
     ego_mad_factor: float = 3.0
     ego_iterations: int = 4
     ego_planar: bool = False
+    ego_open_gradient: bool = False
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
