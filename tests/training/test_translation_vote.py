@@ -91,6 +91,30 @@ def test_the_net_with_the_switch_follows_a_change_of_speed_exactly_and_trains():
     assert all(p.grad is not None for p in net.head3_coarse.parameters())
 
 
+def test_with_zero_flow_heads_the_untrained_net_returns_the_voted_translation_and_trains():
+    """``zero_flow_heads``: before any training every level's flow is the vote's translation exactly (the
+    heads add nothing, the ego head fits no motion to zero flow); the heads still receive gradients."""
+    torch.manual_seed(0)
+    net = HALFlowNet(_cfg(translation_vote=True, zero_flow_heads=True, ego_head=True, l0_cost_volume=True))
+    pc1 = _street(512)
+    shift = torch.tensor([0.2, 0.0, -1.3])
+    pc2 = pc1 + shift
+    with torch.no_grad():
+        out = net.eval()(pc1, pc2)
+        voted = vote_translation(out.points[0], out.points2[0])[0]  # the vote runs on the L0 points
+    # the ego head's fit to zero flow is the identity up to float64 round-off
+    assert all(torch.allclose(f, voted.expand_as(f), atol=1e-5) for f in out.flows)
+    assert torch.allclose(voted, shift, atol=0.05)
+    out = net.train()(pc1, pc2)
+    sum(f.square().mean() for f in out.flows).backward()
+    assert all(h.linear.weight.grad.abs().sum() > 0 for h in (net.head3_coarse, net.head0_refine))
+    # the default: PyTorch's initialisation, the first flows are not the vote's
+    torch.manual_seed(0)
+    with torch.no_grad():
+        plain = HALFlowNet(_cfg(translation_vote=True)).eval()(pc1, pc2)
+    assert not torch.allclose(plain.flows[0], voted.expand_as(plain.flows[0]), atol=1e-3)
+
+
 def test_without_the_switch_the_net_is_the_papers_form(monkeypatch):
     def refuse(*_args, **_kw):
         raise AssertionError("the vote ran with the switch off")

@@ -16,11 +16,15 @@ from training.model.layers import SharedMLP
 
 
 class FlowHead(nn.Module):
-    """Linear map (B, M, C) -> (B, M, 3) flow."""
+    """Linear map (B, M, C) -> (B, M, 3) flow; ``zero_init``: weights and bias start at zero, so the head's
+    first output is no flow (``HALFlowConfig.zero_flow_heads``)."""
 
-    def __init__(self, in_channels: int) -> None:
+    def __init__(self, in_channels: int, zero_init: bool = False) -> None:
         super().__init__()
         self.linear = nn.Linear(in_channels, 3)
+        if zero_init:
+            nn.init.zeros_(self.linear.weight)
+            nn.init.zeros_(self.linear.bias)
 
     def forward(self, x: Tensor) -> Tensor:
         return self.linear(x)

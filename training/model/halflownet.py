@@ -80,32 +80,32 @@ class HALFlowNet(nn.Module):
         # L3: coarse flow, then one warping refinement.
         c3_flow = self.sa3_flow.out_channels
         self.up3 = SetUpConv(c3_flow, self.sa4.out_channels, cfg.upconv_k, w(256, 256, 512), w(512), nm, kb)
-        self.head3_coarse = FlowHead(self.up3.out_channels)
+        self.head3_coarse = FlowHead(self.up3.out_channels, cfg.zero_flow_heads)
         if cfg.coarse_match:  # a measured coarse translation (a departure, HALFlowConfig.coarse_match)
             self.coarse_translation = SoftTranslation(c2, sigma_m=cfg.coarse_match_sigma_m)
         self.cost3 = AttentiveCostVolume(c3, w(512, 256, 256), w(512, 256), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
         self.refine3 = FlowRefiner(c3_flow, self.cost3.out_channels, self.up3.out_channels, w(512, 256, 256), nm)
-        self.head3 = FlowHead(self.refine3.out_channels)
+        self.head3 = FlowHead(self.refine3.out_channels, cfg.zero_flow_heads)
 
         # L2 and L1: upsample, warp, cost volume, refine.
         self.up2 = SetUpConv(c2, self.refine3.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), nm, kb)
         self.cost2 = AttentiveCostVolume(c2, w(256, 128, 128), w(256, 128), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
         self.refine2 = FlowRefiner(c2, self.cost2.out_channels, self.up2.out_channels, w(256, 128, 128), nm)
-        self.head2 = FlowHead(self.refine2.out_channels)
+        self.head2 = FlowHead(self.refine2.out_channels, cfg.zero_flow_heads)
 
         self.up1 = SetUpConv(c1, self.refine2.out_channels, cfg.upconv_k, w(256, 128, 128), w(128), nm, kb)
         self.cost1 = AttentiveCostVolume(c1, w(128, 64, 64), w(128, 64), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
         self.refine1 = FlowRefiner(c1, self.cost1.out_channels, self.up1.out_channels, w(256, 128, 128), nm)
-        self.head1 = FlowHead(self.refine1.out_channels)
+        self.head1 = FlowHead(self.refine1.out_channels, cfg.zero_flow_heads)
 
         # L0: feature propagation of L1's refinement features, residual flow.
         self.fp0 = FeaturePropagation(c0, self.refine1.out_channels, w(256, 256), nm, kb)
         self.fc0 = SharedMLP(self.fp0.out_channels, w(128), nm)
-        self.head0 = FlowHead(self.fc0.out_channels)
+        self.head0 = FlowHead(self.fc0.out_channels, cfg.zero_flow_heads)
         if cfg.l0_cost_volume:  # a fifth warping level at L0 (a departure, HALFlowConfig.l0_cost_volume)
             self.cost0 = AttentiveCostVolume(c0, w(64, 32, 32), w(64, 32), cfg.refine_k, cfg.cost_k_pc1, nm, kb)
             self.refine0 = FlowRefiner(c0, self.cost0.out_channels, self.fc0.out_channels, w(128, 64, 64), nm)
-            self.head0_refine = FlowHead(self.refine0.out_channels)
+            self.head0_refine = FlowHead(self.refine0.out_channels, cfg.zero_flow_heads)
         self.set_eval_norm_stats(cfg.eval_norm_stats)
 
     def set_eval_norm_stats(self, mode: str) -> None:

@@ -65,6 +65,10 @@ class HALFlowConfig:
         whose flow starts at the camera's motion gets almost none of the Chamfer term's pull; true = every
         point's own flow gets the whole gradient (straight-through), the output's value unchanged; false =
         the gate's gradient (:func:`~training.model.ego_motion.rigid_plus_residual`).
+    zero_flow_heads: every flow head (the last linear layer of each level's flow) starts at zero weights and
+        bias, so the untrained net outputs no flow — with ``translation_vote``, exactly the voted camera
+        translation — and learns departures from it; false = PyTorch's default initialisation (the
+        paper's), whose first flows are random, of the order of the features' scale.
     eval_norm_stats: at inference (eval mode), batch norm uses ``"running"`` statistics (collected in
         training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
         so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
@@ -96,6 +100,7 @@ class HALFlowConfig:
     ego_iterations: int = 4
     ego_planar: bool = False
     ego_open_gradient: bool = False
+    zero_flow_heads: bool = False
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
