@@ -135,3 +135,22 @@ def test_the_tvote_baseline_gives_every_point_the_voted_translation():
     flow = make_baseline("tvote")(pc1, pc1[::-1] + t, None, None)
     assert flow.shape == pc1.shape and flow.dtype == np.float32
     np.testing.assert_allclose(flow, np.broadcast_to(t, pc1.shape), atol=0.02)
+
+
+def test_the_tvote_baseline_votes_between_farthest_point_samples_so_a_dense_near_car_does_not_win():
+    """A LiDAR-like scene: 1500 points on the back of a car 6 m ahead (dense, as near points are), 600 on
+    the street. On every raw point the car is the majority and the vote returns its motion; on 512
+    farthest-point samples (the default, as the net's L0) the car keeps a few and the camera's wins."""
+    from evaluation.baselines.translation_vote import TranslationVoteBaseline
+
+    street = _street(600)
+    t, t_car = torch.tensor([0.0, 0.0, -1.2]), torch.tensor([0.0, 0.0, -0.1])
+    car = torch.rand(1, 1500, 3, generator=torch.Generator().manual_seed(3)) * torch.tensor([1.8, 1.4, 0.3])
+    car = car + torch.tensor([-0.9, -0.7, 6.0])
+    pc1 = torch.cat([street, car], 1)[0].numpy()
+    pc2 = torch.cat([street + t, car + t_car], 1)[0].numpy()
+    raw = TranslationVoteBaseline(sample_points=0)(pc1, pc2)
+    sampled = TranslationVoteBaseline()(pc1, pc2)
+    # the car's 1.1 m slower motion, not the camera's (its x, y come from the car's box: within 0.2 m)
+    assert np.linalg.norm(raw[0] - t_car.numpy()) < 0.2
+    np.testing.assert_allclose(sampled[0], t.numpy(), atol=0.05)
