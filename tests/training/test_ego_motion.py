@@ -143,3 +143,32 @@ def test_open_gradient_keeps_the_output_and_reaches_the_own_flow_of_a_gated_poin
     assert abs(g_gated[0, 0, 0].item()) < 0.05
     # opened: the straight-through adds (1 − m) ≈ 1 to it
     assert g_open[0, 0, 0].item() > 0.95
+
+
+def test_neighbourhood_gate_keeps_a_moving_cluster_and_returns_isolated_strays_to_the_ego_motion():
+    """``gate_k``: 60 points of a car (a 1 m ball) move 2 m on their own; 10 scattered static points have a
+    wrong flow of their own (1 m off, as a wrong Chamfer match leaves them). Each point's own residual keeps
+    both; the median over 8 neighbours keeps the car's and gives the strays the ego-motion."""
+    g = torch.Generator().manual_seed(1)
+    static = (torch.rand(1, 500, 3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor([40.0, 4.0, 40.0])
+    car = torch.randn(1, 60, 3, generator=g, dtype=torch.float64) * 0.4 + torch.tensor([3.0, 0.0, 12.0])
+    p = torch.cat([static, car], 1)
+    T = torch.tensor(pose_vec_to_mat(np.array([0.05, 0.0, 1.0, 0.0, 0.02, 0.0])))
+    flow = p @ T[:3, :3].T + T[:3, 3] - p
+    flow[:, 500:] += torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64)
+    strays = torch.arange(0, 500, 50)
+    flow[:, strays] += torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    rigid = p @ T[:3, :3].T + T[:3, 3] - p
+    for k, strays_kept in ((0, True), (8, False)):
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, gate_k=k)
+        assert torch.allclose(out[:, 500:], flow[:, 500:], atol=0.05)  # the car keeps its own flow
+        stray_err = (out[:, strays] - rigid[:, strays]).norm(dim=-1)
+        assert (stray_err > 0.9).all() if strays_kept else (stray_err < 0.05).all()
+
+
+def test_a_negative_gate_neighbourhood_is_refused():
+    from core.errors import ConfigError
+    from training.model.halflownet import HALFlowConfig
+
+    with pytest.raises(ConfigError, match="ego_gate_k"):
+        HALFlowConfig(ego_gate_k=-1)

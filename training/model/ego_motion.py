@@ -27,6 +27,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from training.knn import knn
+from training.pointops import group
+
 
 def weighted_rigid_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     """The rotation R (B, 3, 3) and translation t (B, 3) minimising ``Σ w_i ‖R src_i + t − dst_i‖²``.
@@ -76,7 +79,7 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
 
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
-                        open_gradient: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        open_gradient: bool = False, gate_k: int = 0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -90,7 +93,12 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     own flow receives the output's gradient in full, also where the gate holds it at the rigid flow
     (a straight-through gate: ``f' + (1 − m) ⊙ (f − sg(f))``, ``sg`` = stop-gradient). With the gate's
     gradient alone (false), a point whose flow agrees with the ego-motion gets ``m ≈ 0`` of it, so a
-    mover whose flow starts at the camera's motion is never pushed away from it.
+    mover whose flow starts at the camera's motion is never pushed away from it. ``gate_k`` > 1: the gate
+    reads the component-wise median of the residual vectors over each point's ``gate_k`` nearest points
+    (itself included) instead of its own residual, so a point keeps its own flow only where its
+    neighbourhood moves with it: a mover's points share their departure from the ego-motion, a static
+    point that its flow alone sends astray (a wrong Chamfer match, a point leaving the view) does not.
+    The fit's Cauchy weights stay per point.
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -106,6 +114,9 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             weights = s2 / (s2 + r2)
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():
+        if gate_k > 1:
+            _, idx = knn(points, points, min(gate_k, points.shape[1]))
+            r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
         gate = (r2 * r2 / (s2 * s2 + r2 * r2))[..., None]
     out = rigid + gate * (flow - rigid)
     if open_gradient:

@@ -126,7 +126,7 @@ class HALFlowNet(nn.Module):
             return flow, None
         x = xyz.float()
         out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
-                                           cfg.ego_planar, cfg.ego_open_gradient)
+                                           cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         return out.to(flow.dtype), rigid.to(flow.dtype)
 

@@ -65,6 +65,10 @@ class HALFlowConfig:
         whose flow starts at the camera's motion gets almost none of the Chamfer term's pull; true = every
         point's own flow gets the whole gradient (straight-through), the output's value unchanged; false =
         the gate's gradient (:func:`~training.model.ego_motion.rigid_plus_residual`).
+    ego_gate_k: 0 = the head's gate reads each point's own residual from the fitted ego-motion; k > 1 = the
+        component-wise median residual of its k nearest points (itself included), so that a point keeps its
+        own flow only where its neighbourhood departs from the ego-motion with it (movers are rigid
+        clusters; a static point whose own flow went astray is not). No gradient; a departure.
     zero_flow_heads: every flow head (the last linear layer of each level's flow) starts at zero weights and
         bias, so the untrained net outputs no flow — with ``translation_vote``, exactly the voted camera
         translation — and learns departures from it; false = PyTorch's default initialisation (the
@@ -101,6 +105,7 @@ class HALFlowConfig:
     ego_planar: bool = False
     ego_open_gradient: bool = False
     zero_flow_heads: bool = False
+    ego_gate_k: int = 0
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
@@ -133,6 +138,8 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
+        if self.ego_gate_k < 0:
+            raise ConfigError(f"ego_gate_k must be >= 0, got {self.ego_gate_k}")
         if self.norm not in NORMS:
             raise ConfigError(f"norm must be one of {NORMS}, got {self.norm!r}")
         check_eval_norm_stats(self.eval_norm_stats, self.norm)
