@@ -27,8 +27,7 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
     :class:`evaluation.sample.SceneFlowSample`."""
     import torch
 
-    from training.model.translation_vote import VoteConfig, vote_translation
-    from training.pointops import farthest_point_sample, gather_points
+    from training.model.translation_vote import VoteConfig, vote_between_samples
 
     rng = np.random.default_rng(seed)
     cfg = VoteConfig(candidates=candidates)
@@ -37,9 +36,7 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
         i1 = rng.choice(len(s.pc1), min(n_points, len(s.pc1)), replace=False)
         i2 = rng.choice(len(s.pc2), min(n_points, len(s.pc2)), replace=False)
         p1, p2 = (torch.from_numpy(np.ascontiguousarray(x)).float()[None] for x in (s.pc1[i1], s.pc2[i2]))
-        a = gather_points(p1, farthest_point_sample(p1, min(level_points, p1.shape[1])))
-        b = gather_points(p2, farthest_point_sample(p2, min(level_points, p2.shape[1])))
-        t = vote_translation(a, b, cfg)[0].numpy()
+        t = vote_between_samples(p1, p2, level_points, cfg)[0].numpy()
         static = np.ones(len(i1), bool) if s.moving is None else ~np.asarray(s.moving, bool)[i1]
         if static.any():
             out.append(float(np.linalg.norm(s.flow[i1][static] - t, axis=1).mean()))

@@ -5,11 +5,9 @@ samples of ``sample_points`` points as the net votes between its L0 points. A tr
 registration with no initial guess: it shows what the vote alone is worth, beside ICP (local) and FGR
 (features).
 
-Why a farthest-point sample: a LiDAR cloud is densest near the sensor, so on the raw points the vote's
-"frame-1 points explained" count is dominated by the nearest few metres (often a car ahead); the
-farthest-point sample spreads the points evenly over the scene, as the net's levels do. On the tenth
-round's own splits the raw-point vote's static error was 0.19–0.27 m, the sampled vote's 0.02–0.08 m per
-scene (docs/learned-flow.md, eleventh round)."""
+Why a sample (:func:`~training.model.translation_vote.vote_between_samples`): on the raw points the dense
+near field of a LiDAR cloud outvotes the scene. On the tenth round's own splits the raw-point vote's static
+error was 0.19–0.27 m, the sampled vote's 0.02–0.08 m per scene (docs/learned-flow.md, eleventh round)."""
 
 from __future__ import annotations
 
@@ -35,13 +33,9 @@ class TranslationVoteBaseline:
     def __call__(self, pc1: np.ndarray, pc2: np.ndarray) -> np.ndarray:
         import torch
 
-        from training.model.translation_vote import vote_translation
-        from training.pointops import farthest_point_sample, gather_points
+        from training.model.translation_vote import vote_between_samples
 
         p1, p2 = as_cloud("pc1", pc1), as_cloud("pc2", pc2)
-        clouds = [torch.from_numpy(np.ascontiguousarray(p)[None]).float() for p in (p1, p2)]
-        if self.sample_points > 0:
-            clouds = [c if c.shape[1] <= self.sample_points else
-                      gather_points(c, farthest_point_sample(c, self.sample_points)) for c in clouds]
-        t = vote_translation(clouds[0], clouds[1], self.config)
+        a, b = (torch.from_numpy(np.ascontiguousarray(p)[None]).float() for p in (p1, p2))
+        t = vote_between_samples(a, b, self.sample_points, self.config)
         return np.broadcast_to(t[0].numpy().astype(np.float32), p1.shape).copy()

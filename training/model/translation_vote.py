@@ -125,3 +125,19 @@ def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = Non
     t = t.reshape(B, k, 3)[torch.arange(B), matched.argmax(dim=1)]
     t = torch.where(inside.any(dim=1, keepdim=True), t, torch.zeros_like(t))
     return t.to(xyz1.dtype)
+
+
+def vote_between_samples(xyz1: Tensor, xyz2: Tensor, sample_points: int, config: VoteConfig | None = None) -> Tensor:
+    """:func:`vote_translation` between farthest-point samples of ``sample_points`` points of each cloud
+    (B, ·, 3), as the net votes between its L0 points; a cloud with no more points than that, or
+    ``sample_points`` 0, is used whole. A LiDAR cloud is densest near the sensor, and on its raw points the
+    count of explained frame-1 points is dominated by the nearest few metres; the sample spreads them over
+    the scene. Serves the ``tvote`` baseline and ``benchmarks.vote_accuracy``."""
+    from training.pointops import farthest_point_sample, gather_points
+
+    def sampled(x: Tensor) -> Tensor:
+        if sample_points <= 0 or x.shape[1] <= sample_points:
+            return x
+        return gather_points(x, farthest_point_sample(x, sample_points))
+
+    return vote_translation(sampled(xyz1), sampled(xyz2), config)
