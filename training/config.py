@@ -160,6 +160,12 @@ class LossWeights:
         distance between the flow of the rigid motion the net's ego head fitted and stage one's static
         flow, over all points (:mod:`training.losses.ego_motion`; docs/learned-flow.md, seventh round).
         Needs ``model.ego_head``; no labels, only stage one's pose.
+    gate_pull: weight of the gate pull at every level (a departure; 0 = the paper): the mean squared
+        distance (m²) between each point's own flow and the ego head's output, with the output held fixed,
+        in both passes; it pulls the own flow that the gate holds at the camera's motion back to it, so that
+        it cannot stray until the gate lets it through (:mod:`training.losses.gate_pull`;
+        docs/learned-flow.md, twelfth round). Needs ``model.ego_head``; meant with
+        ``model.ego_open_gradient``. 1 = as strong as the Chamfer term (β3 = 1).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -182,6 +188,7 @@ class LossWeights:
     anchor_tol_m: float = 0.1
     anchor_tol_rel: float = 0.02
     ego_motion: float = 0.0
+    gate_pull: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -195,8 +202,8 @@ class LossWeights:
         if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
             raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
                               f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
-        if self.ego_motion < 0:
-            raise ConfigError(f"need ego_motion >= 0, got {self.ego_motion}")
+        if self.ego_motion < 0 or self.gate_pull < 0:
+            raise ConfigError(f"need ego_motion >= 0 and gate_pull >= 0, got {self.ego_motion}, {self.gate_pull}")
         if self.alpha_order not in ALPHA_ORDERS:
             raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
         if self.depth_variant not in DEPTH_VARIANTS:

@@ -4,7 +4,8 @@
 
 plus, where ``LossWeights.static_anchor`` > 0 (a departure), ``α_k · static_anchor · L^k_SA``
 (:mod:`training.losses.static_anchor`), and where ``LossWeights.ego_motion`` > 0 (a departure),
-``α_k · ego_motion · L^k_EM`` (:mod:`training.losses.ego_motion`).
+``α_k · ego_motion · L^k_EM`` (:mod:`training.losses.ego_motion`), and where ``LossWeights.gate_pull`` > 0
+(a departure), ``α_k · gate_pull · L^k_GP`` (:mod:`training.losses.gate_pull`).
 
 Levels are given finest first (2048, 1024, 256, 64 points at the paper's defaults). Every term is a
 per-point mean (see each function), so a level's terms are on the same scale whatever its number of
@@ -24,6 +25,7 @@ from training.losses.chamfer import chamfer
 from training.losses.depth_consistency import depth_consistency
 from training.losses.dynamic_static import dynamic_static
 from training.losses.ego_motion import ego_motion_term
+from training.losses.gate_pull import gate_pull
 from training.losses.laplacian import laplacian
 from training.losses.static_anchor import static_anchor, verified_static
 from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
@@ -42,6 +44,8 @@ class LevelInputs:
     view1 (B, n) / view2 (B, m), bool or None: the points the Chamfer term averages over (``view_mask``).
     rigid_o (B, n, 3) or None: the flow of the rigid motion the net's ego head fitted in the overall pass
         (:attr:`~training.model.contract.FlowOutput.rigid_flows`; the ego-motion term needs it).
+    gap_o / gap_d (B, n) or None: the ego head's gate gaps ``‖f − sg(f')‖²`` (m²) of the overall and the
+        dynamic pass (:attr:`~training.model.contract.FlowOutput.gate_gaps`; the gate pull needs them).
     """
 
     pc1: Tensor
@@ -54,6 +58,8 @@ class LevelInputs:
     view1: Tensor | None = None
     view2: Tensor | None = None
     rigid_o: Tensor | None = None
+    gap_o: Tensor | None = None
+    gap_d: Tensor | None = None
 
 
 def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
@@ -65,8 +71,8 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
 
 def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
-    ``laplacian``, ``anchor``, ``ego`` (scalars; m², the depth terms in metres with ``depth_norm="l1"``, the
-    anchor and the ego-motion term in metres)."""
+    ``laplacian``, ``anchor``, ``ego``, ``pull`` (scalars; m², the depth terms in metres with
+    ``depth_norm="l1"``, the anchor and the ego-motion term in metres)."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o
@@ -92,6 +98,10 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         if level.rigid_o is None:
             raise ConfigError("loss.ego_motion needs a net that reports its fitted ego-motion (model.ego_head true)")
         out["ego"] = ego_motion_term(level.rigid_o, level.static_flow)
+    if w.gate_pull > 0:
+        if level.gap_o is None or level.gap_d is None:
+            raise ConfigError("loss.gate_pull needs a net that reports its gate gaps (model.ego_head true)")
+        out["pull"] = gate_pull(level.gap_o) + gate_pull(level.gap_d)
     return out
 
 
@@ -116,6 +126,8 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
             weighted = weighted + weights.static_anchor * terms["anchor"]
         if "ego" in terms:
             weighted = weighted + weights.ego_motion * terms["ego"]
+        if "pull" in terms:
+            weighted = weighted + weights.gate_pull * terms["pull"]
         weighted = alpha * weighted
         total = weighted if total is None else total + weighted
         for name, value in terms.items():

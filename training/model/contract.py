@@ -66,6 +66,9 @@ class FlowOutput:
     sampling: the sampling decisions of this pass; pass it to another forward to sample the same points.
     rigid_flows: (B, n_l, 3) per level, the flow ``T̂ p − p`` of the rigid (camera) motion the net fitted
         at those points, for nets that fit one (HALFlowNet with ``ego_head``); empty otherwise.
+    gate_gaps: (B, n_l) per level, ``‖f − sg(f')‖²`` (m²) between the flow that entered the ego head and
+        its output, summed over the level's head calls and differentiable in the former (the gate pull,
+        :mod:`training.losses.gate_pull`); empty for nets without the head.
     """
 
     flows: list[Tensor]
@@ -75,6 +78,7 @@ class FlowOutput:
     points2: list[Tensor] = field(default_factory=list)
     sampling: Any = None
     rigid_flows: list[Tensor] = field(default_factory=list)
+    gate_gaps: list[Tensor] = field(default_factory=list)
 
 
 @runtime_checkable

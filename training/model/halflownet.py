@@ -118,17 +118,20 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor) -> tuple[Tensor, Tensor | None]:
-        """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, and the
-        fitted motion's flow ``T̂ p − p`` (None without the head)."""
+    def _ego(self, xyz: Tensor, flow: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
+        motion's flow ``T̂ p − p`` and the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
+        and the output, differentiable in the former (:mod:`training.losses.gate_pull`); None without the
+        head."""
         cfg = self.config
         if not cfg.ego_head:
-            return flow, None
+            return flow, None, None
         x = xyz.float()
         out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
-        return out.to(flow.dtype), rigid.to(flow.dtype)
+        gap = ((flow.float() - out.detach()) ** 2).sum(-1)
+        return out.to(flow.dtype), rigid.to(flow.dtype), gap
 
     def _down(
         self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
@@ -268,8 +271,8 @@ class HALFlowNet(nn.Module):
             coarse = coarse + self.coarse_translation(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])[:, None]
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow, rigid = self._ego(xyz1_3, coarse + self.head3(hidden))
-        flows, rigids = [flow], [rigid]
+        flow, rigid, gap = self._ego(xyz1_3, coarse + self.head3(hidden))
+        flows, rigids, gaps = [flow], [rigid], [gap]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
         for lvl, upconv, cv, refiner, head in ((2, self.up2, self.cost2, self.refine2, self.head2),
@@ -279,21 +282,24 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid = self._ego(xyz, coarse + head(hidden))
+            flow, rigid, gap = self._ego(xyz, coarse + head(hidden))
             flows.insert(0, flow)
             rigids.insert(0, rigid)
+            gaps.insert(0, gap)
 
         # L0: propagate L1's refinement features, residual on the interpolated L1 flow.
         hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
         coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
         flow = coarse + self.head0(hidden)
+        gap0 = None
         if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
-            flow, _ = self._ego(p1.xyz[0], flow)
+            flow, _, gap0 = self._ego(p1.xyz[0], flow)
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
-        flow, rigid = self._ego(p1.xyz[0], flow)
+        flow, rigid, gap = self._ego(p1.xyz[0], flow)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
+        gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)
 
         if shift is not None:
             flows = [f + shift[:, None] for f in flows]
@@ -307,6 +313,7 @@ class HALFlowNet(nn.Module):
             points2=[gather_points(pc2, i) for i in idx2],
             sampling=Sampling(pc1=p1.samples, pc2=p2.samples),
             rigid_flows=[] if rigids[0] is None else rigids,
+            gate_gaps=[] if gaps[0] is None else gaps,
         )
 
 
