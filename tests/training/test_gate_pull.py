@@ -1,0 +1,109 @@
+"""The gate pull (training/losses/gate_pull.py, LossWeights.gate_pull): it pulls the own flow that the ego
+head's gate holds at the camera's motion back to it, leaves movers alone, and enters the multi-level loss
+from the gaps the net reports (off by default = the paper)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.errors import ConfigError, InputError
+from core.geometry import pose_vec_to_mat
+from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
+from training.losses.gate_pull import gate_pull
+from training.model.ego_motion import rigid_plus_residual
+
+
+def _gap(p: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    out, *_ = rigid_plus_residual(p, flow, sigma=0.25, iterations=4, open_gradient=True)
+    return ((flow - out.detach()) ** 2).sum(-1)
+
+
+def test_descending_the_pull_returns_gated_strays_to_the_camera_motion_and_leaves_movers_alone():
+    """600 points move with the camera; 60 of them carry a stray own flow 0.15 m off (inside the gate's
+    σ = 0.25 m, so the head outputs the rigid flow there), 60 are movers 2.2 m off. Gradient descent on the
+    pull alone brings the strays' own flow back to the head's rigid flow and hardly moves the movers'.
+    (The rigid flow itself may wander: the pull alone prefers no camera motion over another, and the
+    movers' small Cauchy weights bias the fit towards them; in training the Chamfer and ego-motion terms
+    hold it.)"""
+    g = torch.Generator().manual_seed(0)
+    p = torch.randn(1, 600, 3, generator=g, dtype=torch.float64) * 6.0
+    T = torch.tensor(pose_vec_to_mat(np.array([0.1, -0.02, 0.9, 0.01, 0.03, -0.02])))
+    ego = p @ T[:3, :3].T + T[:3, 3] - p
+    start = ego.clone()
+    start[:, :60] += torch.tensor([2.0, 0.0, 1.0], dtype=torch.float64)  # movers
+    start[:, 60:120] += torch.tensor([0.0, 0.09, 0.12], dtype=torch.float64)  # strays, 0.15 m off
+    flow = start.clone().requires_grad_(True)
+    gap0 = _gap(p, flow).detach()
+    assert gap0[:, :60].max() < 1e-6  # open gate: the output is the own flow
+    assert gap0[:, 60:120].min() > 0.5 * 0.15 ** 2  # closed gate: the output is (nearly) the rigid flow
+    opt = torch.optim.SGD([flow], lr=600 / 4)  # the mean over 600 points: each step halves a point's gap
+    for _ in range(30):
+        opt.zero_grad()
+        gate_pull(_gap(p, flow)).backward()
+        opt.step()
+    with torch.no_grad():
+        _, R, t, _ = rigid_plus_residual(p, flow, sigma=0.25, iterations=4)
+        rigid = p @ R.transpose(1, 2) + t[:, None] - p
+        stray_gap = (flow[:, 60:120] - rigid[:, 60:120]).norm(dim=-1)
+        mover_shift = (flow[:, :60] - start[:, :60]).norm(dim=-1)
+    assert stray_gap.max() < 0.01  # from 0.15 m
+    # a mover's gate is open to 1 − (σ/r)⁴ ≈ 1 − 2·10⁻⁴: each step moves it by at most half of that × 2.24 m
+    assert mover_shift.max() < 30 * 0.5 * 2e-4 * 2.24 * 2
+
+
+def test_bad_gaps_are_refused():
+    with pytest.raises(InputError, match="gap_sq"):
+        gate_pull(torch.zeros(2, 10, 3))
+
+
+def _levels(with_gaps: bool = True) -> list[LevelInputs]:
+    levels = []
+    for n, seed in ((60, 0), (30, 1)):
+        g = torch.Generator().manual_seed(seed)
+        pc1 = torch.rand(1, n, 3, generator=g) * 10 + torch.tensor([-5.0, -1.0, 5.0])
+        sf = torch.tensor([0.1, 0.0, -0.8]).expand(1, n, 3).clone()
+        flow_o = sf + 0.2 * torch.randn(1, n, 3, generator=g)
+        gap = torch.full((1, n), 0.04) if with_gaps else None
+        levels.append(LevelInputs(pc1=pc1, pc2=pc1 + sf, flow_o=flow_o, flow_d=torch.zeros_like(flow_o),
+                                  static_flow=sf, K=torch.tensor([[[40.0, 0.0, 23.5], [0.0, 40.0, 15.5],
+                                                                   [0.0, 0.0, 1.0]]]),
+                                  depth2=torch.full((1, 32, 48), 10.0), gap_o=gap,
+                                  gap_d=None if gap is None else 0.5 * gap))
+    return levels
+
+
+def test_the_pull_enters_every_level_with_its_weight_and_is_off_by_default():
+    weights = dict(alpha=(0.02, 0.04))
+    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
+    assert not any(k.endswith("/pull") for k in terms)
+    pulled, terms_p = multi_level_loss(_levels(), LossWeights(gate_pull=2.0, **weights))
+    for k in range(2):
+        assert terms_p[f"l{k}/pull"] == pytest.approx(0.06, rel=1e-6)  # both passes: 0.04 + 0.02 m²
+    alphas = level_alphas(LossWeights(**weights), 2)
+    added = sum(a * 2.0 * terms_p[f"l{k}/pull"] for k, a in enumerate(alphas))
+    np.testing.assert_allclose(pulled.item() - plain.item(), added, rtol=1e-5)
+    with pytest.raises(ConfigError, match="ego_head"):
+        multi_level_loss(_levels(with_gaps=False), LossWeights(gate_pull=1.0, **weights))
+    with pytest.raises(ConfigError, match="gate_pull"):
+        LossWeights(gate_pull=-1.0)
+
+
+def test_the_net_reports_its_gate_gaps_per_level_and_they_reach_the_heads():
+    from training.config import level_points_for
+    from training.model.halflownet import HALFlowConfig, HALFlowNet
+
+    torch.manual_seed(0)
+    lp = level_points_for(512)
+    pc1 = torch.randn(2, 512, 3) * 4 + torch.tensor([0.0, 0.0, 10.0])
+    pc2 = pc1 + torch.tensor([0.0, 0.0, -0.8])
+    small = dict(n_points=512, level_points=lp, width_scale=0.25)
+    assert HALFlowNet(HALFlowConfig(**small))(pc1, pc2).gate_gaps == []
+    net = HALFlowNet(HALFlowConfig(**small, ego_head=True, ego_open_gradient=True, l0_cost_volume=True))
+    out = net(pc1, pc2)
+    assert [tuple(g.shape) for g in out.gate_gaps] == [(2, n) for n in lp[:4]]
+    assert all(bool((g >= 0).all()) and g.sum() > 0 for g in out.gate_gaps)  # random heads: own flows stray
+    sum(gate_pull(g) for g in out.gate_gaps).backward()
+    heads = [net.head0, net.head1, net.head2, net.head3, net.head0_refine]
+    assert all(q.grad is not None and q.grad.abs().sum() > 0 for h in heads for q in h.parameters())
