@@ -166,6 +166,10 @@ class LossWeights:
         it cannot stray until the gate lets it through (:mod:`training.losses.gate_pull`;
         docs/learned-flow.md, twelfth round). Needs ``model.ego_head``; meant with
         ``model.ego_open_gradient``. 1 = as strong as the Chamfer term (β3 = 1).
+    chamfer_truncate: metres; > 0: every level's Chamfer term counts a nearest-neighbour distance above
+        this as this, with no gradient (NSFP's truncation; :func:`training.losses.chamfer.chamfer`), so points
+        without a counterpart in the other cloud stop pulling the flow (a departure; docs/learned-flow.md,
+        twelfth round). 0 = the paper's untruncated eq. 13.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -189,6 +193,7 @@ class LossWeights:
     anchor_tol_rel: float = 0.02
     ego_motion: float = 0.0
     gate_pull: float = 0.0
+    chamfer_truncate: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -202,6 +207,8 @@ class LossWeights:
         if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
             raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
                               f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
+        if self.chamfer_truncate < 0:
+            raise ConfigError(f"need chamfer_truncate >= 0 (metres; 0 = none), got {self.chamfer_truncate}")
         if self.ego_motion < 0 or self.gate_pull < 0:
             raise ConfigError(f"need ego_motion >= 0 and gate_pull >= 0, got {self.ego_motion}, {self.gate_pull}")
         if self.alpha_order not in ALPHA_ORDERS:

@@ -10,23 +10,16 @@ import math
 
 from torch import Tensor
 
-from training.losses.chamfer import nearest_sq_dist
+from training.losses.chamfer import chamfer
 from training.losses.laplacian import laplacian
 
 
 def truncated_chamfer(p_warped: Tensor, pc2: Tensor, truncate: float = math.inf) -> Tensor:
-    """``mean_p min(min_q ‖p − q‖², τ²) + mean_q min(min_p ‖p − q‖², τ²)``, m² (τ = ``truncate``, metres).
-
-    With ``τ = inf`` this is the paper's Chamfer loss (eq. 13, :func:`training.losses.chamfer.chamfer`);
-    a finite τ is NSFP's truncation: a point farther than τ from the other cloud adds a constant and
-    no gradient, so unmatched points (occlusion, field of view) stop dragging the flow.
-    """
-    d12 = nearest_sq_dist(p_warped, pc2)
-    d21 = nearest_sq_dist(pc2, p_warped)
-    if math.isfinite(truncate):
-        cap = truncate * truncate
-        d12, d21 = d12.clamp(max=cap), d21.clamp(max=cap)
-    return d12.mean() + d21.mean()
+    """``mean_p min(min_q ‖p − q‖², τ²) + mean_q min(min_p ‖p − q‖², τ²)``, m² (τ = ``truncate``, metres):
+    :func:`training.losses.chamfer.chamfer` with its truncation. ``τ = inf`` is the paper's eq. 13; a
+    finite τ is NSFP's: a point farther than τ from the other cloud adds a constant and no gradient, so
+    unmatched points (occlusion, field of view) stop dragging the flow."""
+    return chamfer(p_warped, pc2, truncate=truncate)
 
 
 def laplacian_term(p_warped: Tensor, pc1: Tensor, pc2: Tensor, k: int = 10) -> Tensor:

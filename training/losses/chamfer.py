@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from torch import Tensor
 
 from training.knn import KnnBackend, knn
@@ -21,18 +23,23 @@ def nearest_sq_dist(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") ->
 
 
 def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: Tensor | None = None,
-            mask2: Tensor | None = None) -> Tensor:
+            mask2: Tensor | None = None, truncate: float = math.inf) -> Tensor:
     """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
 
     ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
     Each direction is averaged over its own points (the paper writes sums), then over the batch.
     ``mask1`` (B, N) / ``mask2`` (B, M), bool: only these points enter their direction's mean (every point
     stays a candidate neighbour); ``loss.view_mask`` passes the points that have a counterpart in view.
+    ``truncate`` τ (metres; ``inf`` = the paper): a nearest-neighbour distance above τ counts as τ, with no
+    gradient (NSFP's truncation, Li et al. 2021): a point with no counterpart in the other cloud (out of
+    view, occluded, beyond the other frame's range) adds a constant instead of pulling the flow.
     """
     check_points("chamfer", "p_warped", p_warped)
     check_points("chamfer", "pc2", pc2, p_warped.shape[0])
-    return (masked_mean(nearest_sq_dist(p_warped, pc2, backend), mask1)
-            + masked_mean(nearest_sq_dist(pc2, p_warped, backend), mask2))
+    d12, d21 = nearest_sq_dist(p_warped, pc2, backend), nearest_sq_dist(pc2, p_warped, backend)
+    if math.isfinite(truncate):
+        d12, d21 = d12.clamp(max=truncate * truncate), d21.clamp(max=truncate * truncate)
+    return masked_mean(d12, mask1) + masked_mean(d21, mask2)
 
 
 def masked_mean(values: Tensor, mask: Tensor | None) -> Tensor:

@@ -14,6 +14,7 @@ points and α alone sets the balance between levels.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -87,7 +88,8 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     if w.use_ds:
         out["ds"] = dynamic_static(level.flow_o, level.static_flow, level.flow_d)
     if w.use_chamfer:
-        out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2)
+        out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
+                                 w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend)
     if w.static_anchor > 0:
