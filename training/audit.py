@@ -175,10 +175,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--n-points", type=int, default=2048)
     p.add_argument("--beta", default="", help="loss weights β1..β4 (depth, DS, Chamfer, Laplacian), comma list; "
                                              "default: LossWeights'")
+    p.add_argument("--chamfer-truncate", type=float, default=0.0,
+                   help="metres; > 0: the Chamfer term truncated there (LossWeights.chamfer_truncate; 0 = the paper)")
     args = p.parse_args(argv)
 
     def run(_):
-        weights = LossWeights(beta=tuple(float(b) for b in args.beta.split(","))) if args.beta else LossWeights()
+        beta = {"beta": tuple(float(b) for b in args.beta.split(","))} if args.beta else {}
+        weights = LossWeights(chamfer_truncate=args.chamfer_truncate, **beta)
         cfg = AuditConfig(cache=args.cache, checkpoint=args.checkpoint, subset=args.subset,
                           pairs_max=args.pairs_max, n_points=args.n_points, weights=weights)
         print(format_rows(audit(cfg)))

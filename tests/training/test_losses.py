@@ -57,6 +57,28 @@ def test_chamfer_gradient_pulls_towards_nearest_point_and_is_finite_for_duplicat
     assert (warped.grad[0, :2] == 0).all()
 
 
+def test_truncated_chamfer_caps_unmatched_points_and_takes_their_gradient_away():
+    """``truncate`` τ: the hand-computed pairs of :func:`test_chamfer_hand_computed` with τ = 1.5 m: the
+    squared distances 4 and 9 (2 m and 3 m) count as 2.25, the others as they are; the capped points get
+    no gradient, the others the paper's."""
+    warped = t64([[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [2, 0, 0]]]).requires_grad_(True)
+    pc2 = t64([[[0, 0, 1], [3, 0, 0], [1, 1, 0]], [[0, 0, 0.5], [2, 0, 0], [5, 0, 0]]])
+    expected = ((1 + (1 + 2.25 + 1) / 3) + (0.125 + (0.25 + 0 + 2.25) / 3)) / 2
+    np.testing.assert_allclose(chamfer(warped, pc2, truncate=1.5).item(), expected, rtol=1e-12)
+    assert chamfer(warped, pc2, truncate=math.inf).item() == chamfer(warped, pc2).item()  # the paper's form
+    # (5,0,0) of element 1 is 3 m from its nearest warped point (2,0,0): capped, it no longer pulls that point
+    far = t64([[[0, 0, 0]], [[2, 0, 0]]])
+    pc2_far = t64([[[0, 0, 0]], [[5, 0, 0]]])
+    x = far.clone().requires_grad_(True)
+    chamfer(x, pc2_far, truncate=1.5).backward()
+    assert (x.grad == 0).all()
+    x.grad = None
+    chamfer(x, pc2_far).backward()
+    assert x.grad[1, 0, 0].item() < 0  # untruncated: pulled 3 m towards (5,0,0)
+    with pytest.raises(ConfigError, match="chamfer_truncate"):
+        LossWeights(chamfer_truncate=-1.0)
+
+
 # --------------------------------------------------------------------------- dynamic-static
 
 
