@@ -28,7 +28,7 @@ def test_term_is_the_mean_distance_between_the_fitted_and_the_static_flow():
     assert torch.isfinite(rigid.grad).all() and rigid.grad.abs().sum() > 0
 
 
-def _levels(with_rigid: bool = True) -> list[LevelInputs]:
+def _levels(with_rigid: bool = True, with_gaps: bool = False) -> list[LevelInputs]:
     levels = []
     for n, seed in ((60, 0), (30, 1)):
         g = torch.Generator().manual_seed(seed)
@@ -37,7 +37,9 @@ def _levels(with_rigid: bool = True) -> list[LevelInputs]:
         flow_o = sf + 0.2 * torch.randn(1, n, 3, generator=g)
         levels.append(LevelInputs(pc1=pc1, pc2=pc1 + sf, flow_o=flow_o, flow_d=torch.zeros_like(flow_o),
                                   static_flow=sf, K=K, depth2=torch.full((1, 32, 48), 10.0),
-                                  rigid_o=(sf + torch.tensor([0.0, 0.0, 0.3])) if with_rigid else None))
+                                  rigid_o=(sf + torch.tensor([0.0, 0.0, 0.3])) if with_rigid else None,
+                                  gap_o=torch.full((1, n), 0.04) if with_gaps else None,
+                                  gap_d=torch.full((1, n), 0.02) if with_gaps else None))
     return levels
 
 
@@ -55,6 +57,24 @@ def test_the_term_enters_every_level_with_its_weight_and_is_off_by_default():
         multi_level_loss(_levels(with_rigid=False), LossWeights(ego_motion=1.0, **weights))
     with pytest.raises(ConfigError, match="ego_motion"):
         LossWeights(ego_motion=-0.5)
+
+
+def test_the_gate_pull_enters_every_level_with_its_weight_and_is_off_by_default():
+    """The gate pull (training/losses/gate_pull.py; more in tests/training/test_gate_pull.py): the mean gap
+    of both passes, α_k · gate_pull at every level."""
+    weights = dict(alpha=(0.02, 0.04))
+    plain, terms = multi_level_loss(_levels(with_gaps=True), LossWeights(**weights))
+    assert not any(k.endswith("/pull") for k in terms)
+    pulled, terms_p = multi_level_loss(_levels(with_gaps=True), LossWeights(gate_pull=2.0, **weights))
+    for k in range(2):
+        assert terms_p[f"l{k}/pull"] == pytest.approx(0.06, rel=1e-6)  # both passes: 0.04 + 0.02 m²
+    alphas = level_alphas(LossWeights(**weights), 2)
+    added = sum(a * 2.0 * terms_p[f"l{k}/pull"] for k, a in enumerate(alphas))
+    np.testing.assert_allclose(pulled.item() - plain.item(), added, rtol=1e-5)
+    with pytest.raises(ConfigError, match="ego_head"):
+        multi_level_loss(_levels(), LossWeights(gate_pull=1.0, **weights))
+    with pytest.raises(ConfigError, match="gate_pull"):
+        LossWeights(gate_pull=-1.0)
 
 
 def test_the_ego_head_reports_a_rigid_flow_per_level_and_the_term_trains_it():

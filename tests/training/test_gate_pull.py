@@ -1,6 +1,6 @@
 """The gate pull (training/losses/gate_pull.py, LossWeights.gate_pull): it pulls the own flow that the ego
-head's gate holds at the camera's motion back to it, leaves movers alone, and enters the multi-level loss
-from the gaps the net reports (off by default = the paper)."""
+head's gate holds at the camera's motion back to it, leaves movers alone, and reaches every head through the
+gaps the net reports (its place in the multi-level loss: tests/training/test_ego_motion_loss.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from core.errors import ConfigError, InputError
+from core.errors import InputError
 from core.geometry import pose_vec_to_mat
-from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
 from training.losses.gate_pull import gate_pull
 from training.model.ego_motion import rigid_plus_residual
 
@@ -56,38 +55,6 @@ def test_descending_the_pull_returns_gated_strays_to_the_camera_motion_and_leave
 def test_bad_gaps_are_refused():
     with pytest.raises(InputError, match="gap_sq"):
         gate_pull(torch.zeros(2, 10, 3))
-
-
-def _levels(with_gaps: bool = True) -> list[LevelInputs]:
-    levels = []
-    for n, seed in ((60, 0), (30, 1)):
-        g = torch.Generator().manual_seed(seed)
-        pc1 = torch.rand(1, n, 3, generator=g) * 10 + torch.tensor([-5.0, -1.0, 5.0])
-        sf = torch.tensor([0.1, 0.0, -0.8]).expand(1, n, 3).clone()
-        flow_o = sf + 0.2 * torch.randn(1, n, 3, generator=g)
-        gap = torch.full((1, n), 0.04) if with_gaps else None
-        levels.append(LevelInputs(pc1=pc1, pc2=pc1 + sf, flow_o=flow_o, flow_d=torch.zeros_like(flow_o),
-                                  static_flow=sf, K=torch.tensor([[[40.0, 0.0, 23.5], [0.0, 40.0, 15.5],
-                                                                   [0.0, 0.0, 1.0]]]),
-                                  depth2=torch.full((1, 32, 48), 10.0), gap_o=gap,
-                                  gap_d=None if gap is None else 0.5 * gap))
-    return levels
-
-
-def test_the_pull_enters_every_level_with_its_weight_and_is_off_by_default():
-    weights = dict(alpha=(0.02, 0.04))
-    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
-    assert not any(k.endswith("/pull") for k in terms)
-    pulled, terms_p = multi_level_loss(_levels(), LossWeights(gate_pull=2.0, **weights))
-    for k in range(2):
-        assert terms_p[f"l{k}/pull"] == pytest.approx(0.06, rel=1e-6)  # both passes: 0.04 + 0.02 m²
-    alphas = level_alphas(LossWeights(**weights), 2)
-    added = sum(a * 2.0 * terms_p[f"l{k}/pull"] for k, a in enumerate(alphas))
-    np.testing.assert_allclose(pulled.item() - plain.item(), added, rtol=1e-5)
-    with pytest.raises(ConfigError, match="ego_head"):
-        multi_level_loss(_levels(with_gaps=False), LossWeights(gate_pull=1.0, **weights))
-    with pytest.raises(ConfigError, match="gate_pull"):
-        LossWeights(gate_pull=-1.0)
 
 
 def test_the_net_reports_its_gate_gaps_per_level_and_they_reach_the_heads():
