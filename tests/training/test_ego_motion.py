@@ -166,9 +166,37 @@ def test_neighbourhood_gate_keeps_a_moving_cluster_and_returns_isolated_strays_t
         assert (stray_err > 0.9).all() if strays_kept else (stray_err < 0.05).all()
 
 
-def test_a_negative_gate_neighbourhood_is_refused():
+def test_spacing_gate_holds_offsets_within_frame_twos_sample_spacing_and_keeps_larger_ones():
+    """``gate_spacing``: frame 2 is a 2 m grid in x–z on two layers (y = ±0.5 m; a sparse sample); every
+    point's rigid target is a cell centre of its layer, 1.41 m from the nearest node. 23 static points carry an own flow 0.5 m off
+    (what a Chamfer match to a node gives), 40 points of a car move 6 m. By the scale alone (0.1 m: the
+    median residual is 0) both pass the gate; with κ = 1 the scale there is 1.41 m: the strays' gate is
+    0.5⁴ / (1.41⁴ + 0.5⁴) ≈ 0.016, the car's 6⁴ / (1.41⁴ + 6⁴) ≈ 0.997."""
+    odd = torch.arange(-15.0, 16.0, 2.0, dtype=torch.float64)
+    layers = torch.tensor([-0.5, 0.5], dtype=torch.float64)
+    targets = torch.stack(torch.meshgrid(odd, layers, odd, indexing="ij"), -1).reshape(1, -1, 3)  # 512 centres
+    t = torch.tensor([0.2, 0.0, 1.0], dtype=torch.float64)
+    p = targets - t
+    rigid = t.expand_as(p)
+    flow = rigid.clone()
+    flow[:, :40] += torch.tensor([0.0, 0.0, 6.0], dtype=torch.float64)  # the car
+    strays = torch.arange(50, 500, 20)
+    flow[:, strays] += torch.tensor([0.3, 0.0, 0.4], dtype=torch.float64)
+    even = torch.arange(-16.0, 17.0, 2.0, dtype=torch.float64)
+    frame2 = torch.stack(torch.meshgrid(even, layers, even, indexing="ij"), -1).reshape(1, -1, 3)
+    for spacing, strays_kept in ((0.0, True), (1.0, False)):
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, frame2=frame2,
+                                      gate_spacing=spacing)
+        assert torch.allclose(out[:, :40], flow[:, :40], atol=0.05)  # (1 − 0.997) × 6 m ≈ 0.02 m at most
+        stray_err = (out[:, strays] - rigid[:, strays]).norm(dim=-1)
+        assert (stray_err > 0.45).all() if strays_kept else (stray_err < 0.05).all()
+
+
+def test_a_negative_gate_neighbourhood_or_spacing_is_refused():
     from core.errors import ConfigError
     from training.model.halflownet import HALFlowConfig
 
     with pytest.raises(ConfigError, match="ego_gate_k"):
         HALFlowConfig(ego_gate_k=-1)
+    with pytest.raises(ConfigError, match="ego_gate_spacing"):
+        HALFlowConfig(ego_gate_spacing=-0.5)

@@ -79,7 +79,8 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
 
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
-                        open_gradient: bool = False, gate_k: int = 0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
+                        gate_spacing: float = 0.0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -98,7 +99,11 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     (itself included) instead of its own residual, so a point keeps its own flow only where its
     neighbourhood moves with it: a mover's points share their departure from the ego-motion, a static
     point that its flow alone sends astray (a wrong Chamfer match, a point leaving the view) does not.
-    The fit's Cauchy weights stay per point.
+    The fit's Cauchy weights stay per point. ``gate_spacing`` κ > 0 with ``frame2`` (B, M, 3), the frame-2
+    points the level's loss compares with (same frame as ``points + flow``): the gate's scale at each
+    point is at least κ × the distance from its rigid target ``T̂ p`` to the nearest frame-2 point, so a
+    residual smaller than the local spacing of that sample — which a Chamfer match to the nearest sample
+    produces on static points — does not open the gate; the fit is unchanged.
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -114,6 +119,9 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             weights = s2 / (s2 + r2)
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():
+        if gate_spacing > 0 and frame2 is not None:
+            d2, _ = knn(moved, frame2, 1)
+            s2 = torch.maximum(s2, gate_spacing * gate_spacing * d2[..., 0])
         if gate_k > 1:
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)

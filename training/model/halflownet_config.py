@@ -69,6 +69,11 @@ class HALFlowConfig:
         component-wise median residual of its k nearest points (itself included), so that a point keeps its
         own flow only where its neighbourhood departs from the ego-motion with it (movers are rigid
         clusters; a static point whose own flow went astray is not). No gradient; a departure.
+    ego_gate_spacing: κ ≥ 0; > 0: the gate's scale at a point is at least κ × the distance from its rigid
+        target to the nearest of the level's frame-2 points, so that an own flow that departs from the
+        ego-motion by less than the local spacing of frame 2's sample (what a Chamfer match to the nearest
+        sample gives a static point) does not pass the gate; 0 = the scale alone. No gradient; a departure
+        (docs/learned-flow.md, twelfth round).
     zero_flow_heads: every flow head (the last linear layer of each level's flow) starts at zero weights and
         bias, so the untrained net outputs no flow — with ``translation_vote``, exactly the voted camera
         translation — and learns departures from it; false = PyTorch's default initialisation (the
@@ -106,6 +111,7 @@ class HALFlowConfig:
     ego_open_gradient: bool = False
     zero_flow_heads: bool = False
     ego_gate_k: int = 0
+    ego_gate_spacing: float = 0.0
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
@@ -138,8 +144,9 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
-        if self.ego_gate_k < 0:
-            raise ConfigError(f"ego_gate_k must be >= 0, got {self.ego_gate_k}")
+        if self.ego_gate_k < 0 or self.ego_gate_spacing < 0:
+            raise ConfigError(f"ego_gate_k and ego_gate_spacing must be >= 0, got {self.ego_gate_k}, "
+                              f"{self.ego_gate_spacing}")
         if self.norm not in NORMS:
             raise ConfigError(f"norm must be one of {NORMS}, got {self.norm!r}")
         check_eval_norm_stats(self.eval_norm_stats, self.norm)
