@@ -165,7 +165,9 @@ class LossWeights:
         in both passes; it pulls the own flow that the gate holds at the camera's motion back to it, so that
         it cannot stray until the gate lets it through (:mod:`training.losses.gate_pull`;
         docs/learned-flow.md, twelfth round). Needs ``model.ego_head``; meant with
-        ``model.ego_open_gradient``. 1 = as strong as the Chamfer term (β3 = 1).
+        ``model.ego_open_gradient``. A held point's own flow settles ``2 d / w`` off the output, ``d`` the
+        distance to its nearest frame-2 sample: at 1 (as strong as the Chamfer term, β3 = 1) it goes past
+        that sample, at 4 it stops halfway (thirteenth round).
     chamfer_truncate: metres; > 0: every level's Chamfer term counts a nearest-neighbour distance above
         this as this, with no gradient (NSFP's truncation; :func:`training.losses.chamfer.chamfer`), so points
         without a counterpart in the other cloud stop pulling the flow (a departure; docs/learned-flow.md,

@@ -10,6 +10,7 @@ import torch
 
 from core.errors import InputError
 from core.geometry import pose_vec_to_mat
+from training.losses.chamfer import chamfer
 from training.losses.gate_pull import gate_pull
 from training.model.ego_motion import rigid_plus_residual
 
@@ -50,6 +51,42 @@ def test_descending_the_pull_returns_gated_strays_to_the_camera_motion_and_leave
     assert stray_gap.max() < 0.01  # from 0.15 m
     # a mover's gate is open to 1 − (σ/r)⁴ ≈ 1 − 2·10⁻⁴: each step moves it by at most half of that × 2.24 m
     assert mover_shift.max() < 30 * 0.5 * 2e-4 * 2.24 * 2
+
+
+def _held_departure(weight: float) -> float:
+    """Mean ‖f − f'‖ (m) at which descent on Chamfer (τ 2 m) + ``weight`` × the pull leaves the own flows of a
+    static scene whose every frame-2 sample lies 0.3 m from its point's true target (see the test below)."""
+    g = torch.Generator().manual_seed(3)
+    n = 200
+    p = torch.rand(1, n, 3, generator=g, dtype=torch.float64) * 20.0 + torch.tensor([-10.0, -10.0, 5.0],
+                                                                                   dtype=torch.float64)
+    T = torch.tensor(pose_vec_to_mat(np.array([0.05, 0.0, 0.8, 0.0, 0.02, 0.0])))
+    ego = p @ T[:3, :3].T + T[:3, 3] - p
+    jitter = torch.randn(1, n, 3, generator=g, dtype=torch.float64)
+    pc2 = p + ego + 0.3 * jitter / jitter.norm(dim=-1, keepdim=True)  # points ~3 m apart: the match is unique
+    flow = ego.clone().requires_grad_(True)
+    opt = torch.optim.SGD([flow], lr=n / (4 * weight))  # the pull's stiffness is 2w/n: each step halves the gap
+    for _ in range(40):
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, open_gradient=True)
+        loss = chamfer(p + out, pc2, "torch", truncate=2.0) + weight * gate_pull(((flow - out.detach()) ** 2).sum(-1))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0)
+        return float((flow - out).norm(dim=-1).mean())
+
+
+def test_the_pull_weight_sets_how_far_a_held_static_flow_strays_towards_its_chamfer_match():
+    """The equilibrium behind ``loss.gate_pull`` 4 (docs/learned-flow.md, thirteenth round). Where the gate
+    holds the output at the rigid flow, the output does not move with the own flow, so the Chamfer term's
+    pull on it never fades: 4 (f' − q) / n from the two directions, q its match at distance d. The pull
+    2 w (f − f') / n balances it at ‖f − f'‖ = 2 d / w. With w = 1 the own flow overshoots its match
+    (0.6 m for d = 0.3 m) and a gate whose scale is fixed lets it through; with w = 4 it stays at half of d."""
+    far, near = _held_departure(1.0), _held_departure(4.0)
+    assert far > 0.3  # past the sample it is pulled to (2 d / w = 0.6 m)
+    assert near < 0.5 * 0.3  # 2 d / w = 0.15 m
+    assert 0.2 < near / far < 0.3  # ∝ 1 / w
 
 
 def test_bad_gaps_are_refused():

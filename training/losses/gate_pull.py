@@ -12,9 +12,18 @@ the gate lets it through (the eleventh round's collapse at 4× the steps). This 
 
 ``sg`` = stop-gradient, so only the own flow is moved, towards what the head outputs. Where the gate is
 open (a mover) ``f' ≈ f`` and the term vanishes; where it is closed it pulls ``f`` back to the rigid flow
-with the same m² scale and per-point mean as the Chamfer term (eq. 13): a mover whose Chamfer pull is
-systematic still leaves the camera's motion until its gate opens, while the zero-mean noise on a static
-point's own flow stays bounded. Label-free: it uses only the net's own outputs. Camera frames, metres.
+with the same m² scale and per-point mean as the Chamfer term (eq. 13).
+
+How far it holds a static point: where the gate is closed the output does not move with the own flow, so
+the Chamfer term's pull on the output towards the point's nearest frame-2 sample ``q`` (at distance ``d``)
+never fades, and reaches the own flow in full through the straight-through gate; summed over its two
+directions it is ``4 (f' − q) / n``. The pull ``2 w (f − f') / n`` balances it at ``‖f − f'‖ = 2 d / w``
+(``tests/training/test_gate_pull.py``). At ``w = 1`` a static point's own flow goes *past* its nearest
+sample — about half a metre at the finest level's 512 points — and the gate, whose scale follows the
+median departure, lets the points with the larger ``d`` through: the static error that grew with the steps
+in the twelfth round. ``w = 4`` holds it at ``d / 2`` (docs/learned-flow.md, thirteenth round). A mover pulls
+its own flow ``D`` off the rigid flow and, once ``D`` is past the gate's scale, opens the gate, where the
+term vanishes. Label-free: it uses only the net's own outputs. Camera frames, metres.
 """
 
 from __future__ import annotations
