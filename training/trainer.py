@@ -60,12 +60,13 @@ RESUMABLE_CHANGES = frozenset({
 })
 
 
-def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None) -> float:
+def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None, train_pairs: int | None = None) -> float:
     """Multiplier of the base lr after ``step`` optimiser steps.
 
     ``optim.schedule = "step"``: ``decay ** (step · batch_size // decay_every_samples)`` (the paper: 0.7 per
     200k samples), floored so that the lr never falls below ``lr_min`` (a base lr already below ``lr_min``
-    is left as it is). ``"cosine"``: ``m + (1 − m) · ½ (1 + cos(π · step / total_steps))`` with
+    is left as it is); with ``optim.decay_every_epochs`` > 0 the period is that many passes over
+    ``train_pairs`` pairs instead (rounded, at least one sample). ``"cosine"``: ``m + (1 − m) · ½ (1 + cos(π · step / total_steps))`` with
     ``m = lr_min / lr`` (1 at step 0, m at ``total_steps`` and after; ``total_steps`` defaults to ``steps``).
     """
     o = cfg.optim
@@ -73,8 +74,12 @@ def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None) -> fl
     if o.schedule == "cosine":
         total = max(1, total_steps or cfg.steps)
         return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * min(step, total) / total))
-    samples = step * o.batch_size
-    return max(o.decay ** (samples // o.decay_every_samples), floor)
+    period = o.decay_every_samples
+    if o.decay_every_epochs > 0:
+        if not train_pairs:
+            raise ConfigError("optim.decay_every_epochs needs the number of training pairs")
+        period = max(1, round(o.decay_every_epochs * train_pairs))
+    return max(o.decay ** (step * o.batch_size // period), floor)
 
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
@@ -114,8 +119,10 @@ def check_config(cfg: TrainConfig) -> None:
     for name in ("log_every", "val_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
-    if cfg.optim.batch_size < 1 or cfg.optim.decay_every_samples < 1 or not cfg.optim.lr > 0:
-        raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1 and lr > 0, got {cfg.optim}")
+    if (cfg.optim.batch_size < 1 or cfg.optim.decay_every_samples < 1 or not cfg.optim.lr > 0
+            or not cfg.optim.decay_every_epochs >= 0):
+        raise ConfigError(f"optim needs batch_size >= 1, decay_every_samples >= 1, decay_every_epochs >= 0 and "
+                          f"lr > 0, got {cfg.optim}")
     if cfg.optim.schedule not in SCHEDULES:  # training.choices
         raise ConfigError(f"optim.schedule must be one of {SCHEDULES}, got {cfg.optim.schedule!r}")
     if not 0 <= cfg.optim.ema_decay < 1:
@@ -166,7 +173,7 @@ class Trainer:
         self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
         self.average = WeightAverage(self.model, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
-        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg, self.steps))
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg, self.steps, len(self.train_idx)))
         self.step = 0
         self.best_val: float | None = None
         resumed = resume and (self.run_dir / "latest.pt").exists()

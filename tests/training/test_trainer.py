@@ -35,6 +35,17 @@ def test_lr_factor_decays_0_7_per_200k_samples_with_floor():
     assert lr_factor(0, _cfg_lr(lr=5e-5, lr_min=1e-4)) == 1.0
 
 
+def test_lr_factor_can_count_its_period_in_epochs_of_the_training_pairs():
+    cfg = _cfg_lr(decay=0.7, decay_every_epochs=10, batch_size=4, lr=1e-3, lr_min=1e-4)
+    # 210 pairs: a decay every 2100 samples = 525 steps of 4, whatever decay_every_samples says
+    assert lr_factor(524, cfg, train_pairs=210) == 1.0
+    assert lr_factor(525, cfg, train_pairs=210) == pytest.approx(0.7)
+    assert lr_factor(2000, cfg, train_pairs=210) == pytest.approx(0.7**3)  # 8000 samples: 3 periods
+    assert lr_factor(525, cfg, train_pairs=2100) == 1.0  # ten times the pairs, ten times the period
+    with pytest.raises(ConfigError, match="training pairs"):
+        lr_factor(1, cfg)
+
+
 def test_cosine_schedule_runs_from_lr_to_lr_min_over_the_run():
     cfg = _cfg_lr(schedule="cosine", lr=1e-3, lr_min=1e-4)
     cfg.steps = 1000
