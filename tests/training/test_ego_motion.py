@@ -145,6 +145,43 @@ def test_open_gradient_keeps_the_output_and_reaches_the_own_flow_of_a_gated_poin
     assert g_open[0, 0, 0].item() > 0.95
 
 
+def test_a_shared_straight_through_passes_a_cluster_s_common_pull_and_thins_scattered_ones():
+    """``open_k``: every point is held at the camera's motion (gate 0). 30 points of a tight cluster (a mover
+    not yet departed) receive one common pull, 300 scattered static points pulls in random directions (their
+    nearest samples lie every way). Shared over 10 neighbours, the cluster's pull reaches its own flows
+    whole (as a sum) and the scattered ones shrink to about 1/√10 of their size; values are unchanged."""
+    g = torch.Generator().manual_seed(4)
+    scattered = torch.rand(1, 300, 3, generator=g, dtype=torch.float64) * 30.0 + torch.tensor([-15.0, -3.0, 5.0],
+                                                                                           dtype=torch.float64)
+    cluster = torch.randn(1, 30, 3, generator=g, dtype=torch.float64) * 0.3 + torch.tensor([4.0, 0.0, 12.0],
+                                                                                         dtype=torch.float64)
+    p = torch.cat([scattered, cluster], 1)
+    T = torch.tensor(pose_vec_to_mat(np.array([0.05, 0.0, 0.9, 0.0, 0.01, 0.0])))
+    ego = p @ T[:3, :3].T + T[:3, 3] - p
+    pull = torch.randn(1, 330, 3, generator=g, dtype=torch.float64)
+    pull = pull / pull.norm(dim=-1, keepdim=True)
+    common = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    pull[:, 300:] = common
+
+    def grads(k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        flow = ego.clone().requires_grad_(True)
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, open_gradient=True, open_k=k)
+        (grad,) = torch.autograd.grad((out * pull).sum(), flow)
+        return out.detach(), grad[0]
+
+    out_own, own = grads(0)
+    out_shared, shared = grads(10)
+    assert torch.equal(out_own, out_shared)
+    # the rigid fit adds the same small term to both (the mean pull over 330 points, ≤ 30/330 + noise);
+    # shared, a point gets 1/k of each pull of the points whose neighbourhood holds it: as a whole the cluster
+    # keeps its pull, a point in its middle (in more neighbourhoods) more than one at its edge
+    assert (own[300:] @ common).min() > 0.8
+    assert (shared[300:] @ common).mean() > 0.8 and (shared[300:] @ common).min() > 0.2
+    own_size, shared_size = own[:300].norm(dim=-1).mean(), shared[:300].norm(dim=-1).mean()
+    assert own_size > 0.9
+    assert shared_size < 0.5  # 1/√10 ≈ 0.32 for independent directions
+
+
 def test_neighbourhood_gate_keeps_a_moving_cluster_and_returns_isolated_strays_to_the_ego_motion():
     """``gate_k``: 60 points of a car (a 1 m ball) move 2 m on their own; 10 scattered static points have a
     wrong flow of their own (1 m off, as a wrong Chamfer match leaves them). Each point's own residual keeps
@@ -200,3 +237,5 @@ def test_a_negative_gate_neighbourhood_or_spacing_is_refused():
         HALFlowConfig(ego_gate_k=-1)
     with pytest.raises(ConfigError, match="ego_gate_spacing"):
         HALFlowConfig(ego_gate_spacing=-0.5)
+    with pytest.raises(ConfigError, match="ego_open_gradient_k"):
+        HALFlowConfig(ego_open_gradient_k=-1)

@@ -80,7 +80,7 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
-                        gate_spacing: float = 0.0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                        gate_spacing: float = 0.0, open_k: int = 0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
 
     Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
@@ -103,7 +103,10 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     points the level's loss compares with (same frame as ``points + flow``): the gate's scale at each
     point is at least κ × the distance from its rigid target ``T̂ p`` to the nearest frame-2 point, so a
     residual smaller than the local spacing of that sample — which a Chamfer match to the nearest sample
-    produces on static points — does not open the gate; the fit is unchanged.
+    produces on static points — does not open the gate; the fit is unchanged. ``open_k`` > 1 with
+    ``open_gradient``: the straight-through term uses the mean own flow of each point's ``open_k`` nearest
+    points instead of its own, ``(1 − m) ⊙ (f̄ − sg(f̄))``, so the gradient a held point passes on is shared
+    evenly by its neighbourhood (values unchanged).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -128,5 +131,10 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
         gate = (r2 * r2 / (s2 * s2 + r2 * r2))[..., None]
     out = rigid + gate * (flow - rigid)
     if open_gradient:
-        out = out + (1 - gate) * (flow - flow.detach())
+        through = flow
+        if open_k > 1:
+            with torch.no_grad():
+                _, near = knn(points, points, min(open_k, points.shape[1]))
+            through = group(flow, near).mean(dim=2)
+        out = out + (1 - gate) * (through - through.detach())
     return out, R, t, weights

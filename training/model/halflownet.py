@@ -129,7 +129,7 @@ class HALFlowNet(nn.Module):
         x = xyz.float()
         out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k,
-                                           frame2.float(), cfg.ego_gate_spacing)
+                                           frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         gap = ((flow.float() - out.detach()) ** 2).sum(-1)
         return out.to(flow.dtype), rigid.to(flow.dtype), gap

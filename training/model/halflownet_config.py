@@ -65,6 +65,11 @@ class HALFlowConfig:
         whose flow starts at the camera's motion gets almost none of the Chamfer term's pull; true = every
         point's own flow gets the whole gradient (straight-through), the output's value unchanged; false =
         the gate's gradient (:func:`~training.model.ego_motion.rigid_plus_residual`).
+    ego_open_gradient_k: with ``ego_open_gradient``, k > 1: the straight-through part of a point's gradient
+        is shared evenly among its k nearest points (itself included) instead of reaching its own flow
+        alone, so a held point's own flow follows the pull its neighbourhood agrees on: a mover cluster's
+        common pull passes whole, the nearest-sample pulls of static points, which point every way, mostly
+        cancel (docs/learned-flow.md, thirteenth round). 0 = each point's own. Values unchanged; a departure.
     ego_gate_k: 0 = the head's gate reads each point's own residual from the fitted ego-motion; k > 1 = the
         component-wise median residual of its k nearest points (itself included), so that a point keeps its
         own flow only where its neighbourhood departs from the ego-motion with it (movers are rigid
@@ -110,6 +115,7 @@ class HALFlowConfig:
     ego_planar: bool = False
     ego_open_gradient: bool = False
     zero_flow_heads: bool = False
+    ego_open_gradient_k: int = 0
     ego_gate_k: int = 0
     ego_gate_spacing: float = 0.0
     eval_norm_stats: str = "running"
@@ -144,6 +150,8 @@ class HALFlowConfig:
         if not self.ego_sigma > 0 or self.ego_iterations < 1 or self.ego_mad_factor < 0:
             raise ConfigError(f"need ego_sigma > 0, ego_mad_factor >= 0 and ego_iterations >= 1, got {self.ego_sigma}, "
                               f"{self.ego_mad_factor}, {self.ego_iterations}")
+        if self.ego_open_gradient_k < 0:
+            raise ConfigError(f"ego_open_gradient_k must be >= 0, got {self.ego_open_gradient_k}")
         if self.ego_gate_k < 0 or self.ego_gate_spacing < 0:
             raise ConfigError(f"ego_gate_k and ego_gate_spacing must be >= 0, got {self.ego_gate_k}, "
                               f"{self.ego_gate_spacing}")
