@@ -66,8 +66,9 @@ def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None, train
     ``optim.schedule = "step"``: ``decay ** (step · batch_size // decay_every_samples)`` (the paper: 0.7 per
     200k samples), floored so that the lr never falls below ``lr_min`` (a base lr already below ``lr_min``
     is left as it is); with ``optim.decay_every_epochs`` > 0 the period is that many passes over
-    ``train_pairs`` pairs instead (rounded, at least one sample). ``"cosine"``: ``m + (1 − m) · ½ (1 + cos(π · step / total_steps))`` with
-    ``m = lr_min / lr`` (1 at step 0, m at ``total_steps`` and after; ``total_steps`` defaults to ``steps``).
+    ``train_pairs`` pairs instead (rounded, at least one sample). ``"cosine"``:
+    ``m + (1 − m) · ½ (1 + cos(π · step / total_steps))`` with ``m = lr_min / lr`` (1 at step 0, m at
+    ``total_steps`` and after; ``total_steps`` defaults to ``steps``).
     """
     o = cfg.optim
     floor = min(1.0, o.lr_min / o.lr)
@@ -173,7 +174,9 @@ class Trainer:
         self.model = distributed.unwrap(self.net)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.optim.lr)
         self.average = WeightAverage(self.model, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
-        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: lr_factor(s, cfg, self.steps, len(self.train_idx)))
+        pairs = len(self.train_idx)
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer,
+                                                           lambda s: lr_factor(s, cfg, self.steps, pairs))
         self.step = 0
         self.best_val: float | None = None
         resumed = resume and (self.run_dir / "latest.pt").exists()

@@ -68,7 +68,8 @@ def _held_departure(weight: float) -> float:
     opt = torch.optim.SGD([flow], lr=n / (4 * weight))  # the pull's stiffness is 2w/n: each step halves the gap
     for _ in range(40):
         out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, open_gradient=True)
-        loss = chamfer(p + out, pc2, "torch", truncate=2.0) + weight * gate_pull(((flow - out.detach()) ** 2).sum(-1))
+        gap = ((flow - out.detach()) ** 2).sum(-1)
+        loss = chamfer(p + out, pc2, "torch", truncate=2.0) + weight * gate_pull(gap)
         opt.zero_grad()
         loss.backward()
         opt.step()
