@@ -132,9 +132,8 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     out = rigid + gate * (flow - rigid)
     if open_gradient:
         through = flow
-        if open_k > 1:
-            with torch.no_grad():
-                _, near = knn(points, points, min(open_k, points.shape[1]))
+        if open_k > 1:  # knn returns indices without grad
+            _, near = knn(points, points, min(open_k, points.shape[1]))
             through = group(flow, near).mean(dim=2)
         out = out + (1 - gate) * (through - through.detach())
     return out, R, t, weights
