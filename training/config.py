@@ -177,6 +177,12 @@ class LossWeights:
         this as this, with no gradient (NSFP's truncation; :func:`training.losses.chamfer.chamfer`), so points
         without a counterpart in the other cloud stop pulling the flow (a departure; docs/learned-flow.md,
         twelfth round). 0 = the paper's untruncated eq. 13.
+    chamfer_plane: λ in [0, 1]; > 0: every level's Chamfer pair counts ``(1 − λ)`` of its squared distance
+        plus ``λ`` of its squared component along the surface normal at the pair's frame-(t+1) point (normals
+        from the point's 8 nearest frame-(t+1) points; :func:`training.losses.chamfer.chamfer`). A plain
+        point-to-point distance pulls a point that lands between two samples of a surface onto one of them;
+        the normal component pulls onto the surface only (a departure; docs/learned-flow.md, fourteenth
+        round). 0 = the paper's eq. 13.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -201,6 +207,7 @@ class LossWeights:
     ego_motion: float = 0.0
     gate_pull: float = 0.0
     chamfer_truncate: float = 0.0
+    chamfer_plane: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -214,6 +221,8 @@ class LossWeights:
         if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
             raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
                               f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
+        if not 0 <= self.chamfer_plane <= 1:
+            raise ConfigError(f"need 0 <= chamfer_plane <= 1, got {self.chamfer_plane}")
         if self.chamfer_truncate < 0:
             raise ConfigError(f"need chamfer_truncate >= 0 (metres; 0 = none), got {self.chamfer_truncate}")
         if self.ego_motion < 0 or self.gate_pull < 0:

@@ -22,6 +22,7 @@ from training.losses import (
     nearest_sq_dist,
     neighbours,
 )
+from training.losses.chamfer import surface_normals
 
 F64 = torch.float64
 
@@ -77,6 +78,44 @@ def test_truncated_chamfer_caps_unmatched_points_and_takes_their_gradient_away()
     assert x.grad[1, 0, 0].item() < 0  # untruncated: pulled 3 m towards (5,0,0)
     with pytest.raises(ConfigError, match="chamfer_truncate"):
         LossWeights(chamfer_truncate=-1.0)
+
+
+def _wall_grid(step: float = 0.5, n: int = 9) -> torch.Tensor:
+    """Frame-2 samples of a wall: the plane z = 10 m, an n × n grid ``step`` metres apart, (1, n², 3)."""
+    u = torch.arange(n, dtype=F64) * step
+    x, y = torch.meshgrid(u, u, indexing="ij")
+    return torch.stack([x.ravel(), y.ravel(), torch.full_like(x.ravel(), 10.0)], -1)[None]
+
+
+def test_surface_normals_of_a_plane_are_its_normal():
+    normals = surface_normals(_wall_grid())
+    np.testing.assert_allclose(normals[0, :, 2].abs().numpy(), 1.0, atol=1e-9)
+
+
+def test_plane_chamfer_drops_the_pull_along_the_surface_and_keeps_the_pull_onto_it():
+    """A point that lands between two samples of a wall: the plain Chamfer term pulls it along the wall
+    onto a sample, the point-to-plane form (λ = 1) does not; a point off the wall is pulled onto it by both,
+    and λ blends the two squared distances linearly."""
+    wall = _wall_grid()
+    between = t64([[[1.2, 1.0, 10.0]]]).requires_grad_(True)  # 0.2 m from the sample (1.0, 1.0)
+    chamfer(between, wall, plane=1.0).backward()
+    assert between.grad.abs().max().item() < 1e-12
+    between.grad = None
+    chamfer(between, wall).backward()
+    # plain: pulled along the wall, onto its sample (+0.4) and by every sample towards their centre (−1.6)
+    np.testing.assert_allclose(between.grad[0, 0].numpy(), [2 * 0.2 - 2 * 0.8, -2 * 1.0, 0], atol=1e-12)
+    off = t64([[[1.0, 1.0, 10.3]]]).requires_grad_(True)  # on a sample's normal, 0.3 m off the wall
+    chamfer(off, wall, plane=1.0).backward()
+    assert off.grad[0, 0, 2].item() > 0 and off.grad[0, 0, :2].abs().max().item() < 1e-12
+    # the forward pair (0.3 m along the normal) scores 0.09 in every form; only the wall's other samples,
+    # whose nearest warped point lies along the wall, tell the forms apart
+    plain, plane, half = (chamfer(off.detach(), wall, plane=lam).item() for lam in (0.0, 1.0, 0.5))
+    assert plane < plain
+    np.testing.assert_allclose(half, (plain + plane) / 2, rtol=1e-12)
+    far = t64([[[1.0, 1.0, 13.0]]])  # 3 m off: the truncation reads the plain distance in every form
+    np.testing.assert_allclose(chamfer(far, wall, truncate=1.5, plane=1.0).item(), 2 * 2.25, rtol=1e-12)
+    with pytest.raises(ConfigError, match="chamfer_plane"):
+        LossWeights(chamfer_plane=1.5)
 
 
 # --------------------------------------------------------------------------- dynamic-static

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import torch
 from torch import Tensor
 
 from training.knn import KnnBackend, knn
@@ -18,12 +19,49 @@ def nearest_sq_dist(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") ->
     the gathered coordinates, so it is differentiable in both clouds (no square root: finite gradient
     even for coinciding points).
     """
+    return (nearest_offset(query, ref, backend)[0] ** 2).sum(-1)
+
+
+def nearest_offset(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") -> tuple[Tensor, Tensor]:
+    """Offset (B, M, 3) from every ``query`` point to its nearest ``ref`` point, and that point's index (B, M).
+
+    The neighbour is found without gradient; the offset ``q − p`` is differentiable in both clouds.
+    """
     _, idx = knn(query, ref, 1, backend)
-    return ((group(ref, idx)[:, :, 0] - query) ** 2).sum(-1)
+    return group(ref, idx)[:, :, 0] - query, idx[..., 0]
+
+
+NORMAL_K = 8
+"""Points (the point itself included) whose covariance gives a frame-2 point's surface normal."""
+
+
+def surface_normals(points: Tensor, k: int = NORMAL_K, backend: KnnBackend = "auto") -> Tensor:
+    """Unit normals (B, N, 3) of the surface through each of ``points`` (B, N, 3), sign arbitrary.
+
+    The normal is the direction of least spread of the point's ``k`` nearest points (itself included):
+    the eigenvector of the smallest eigenvalue of their covariance. No gradient (the normals are a
+    property of the fixed frame-2 cloud). Where fewer than three points span a plane the direction is
+    arbitrary; the blend in :func:`chamfer` keeps a share of the plain distance for such places.
+    """
+    with torch.no_grad():
+        _, idx = knn(points, points, min(k, points.shape[1]), backend)
+        near = group(points, idx).double()
+        centred = near - near.mean(dim=2, keepdim=True)
+        _, vectors = torch.linalg.eigh(centred.transpose(-1, -2) @ centred)
+        return vectors[..., 0].to(points.dtype)
+
+
+def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float) -> tuple[Tensor, Tensor]:
+    """Blended squared distance ``(1 − λ) ‖o‖² + λ (o · n)²`` of offsets (B, M, 3) and the plain one."""
+    full = (offset ** 2).sum(-1)
+    if normal is None or plane <= 0:
+        return full, full
+    along = (offset * normal).sum(-1) ** 2
+    return (1 - plane) * full + plane * along, full
 
 
 def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: Tensor | None = None,
-            mask2: Tensor | None = None, truncate: float = math.inf) -> Tensor:
+            mask2: Tensor | None = None, truncate: float = math.inf, plane: float = 0.0) -> Tensor:
     """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
 
     ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
@@ -33,12 +71,25 @@ def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: 
     ``truncate`` τ (metres; ``inf`` = the paper): a nearest-neighbour distance above τ counts as τ, with no
     gradient (NSFP's truncation, Li et al. 2021): a point with no counterpart in the other cloud (out of
     view, occluded, beyond the other frame's range) adds a constant instead of pulling the flow.
+    ``plane`` λ in [0, 1] (0 = the paper): each pair's squared distance becomes ``(1 − λ) ‖p̄ − q‖² +
+    λ ((p̄ − q) · n_q)²``, ``n_q`` the surface normal at the pair's pc2 point (:func:`surface_normals`), in
+    both directions. A point-to-point distance is least at the sample itself, so it pulls every point that
+    lands between two samples of a surface onto one of them — a pull along the surface that the true flow
+    does not have and that a net which sees pc2 can learn. The normal component keeps the pull onto the
+    surface and drops the one along it. The truncation still reads the plain distance.
     """
     check_points("chamfer", "p_warped", p_warped)
     check_points("chamfer", "pc2", pc2, p_warped.shape[0])
-    d12, d21 = nearest_sq_dist(p_warped, pc2, backend), nearest_sq_dist(pc2, p_warped, backend)
+    if plane < 0 or plane > 1:
+        raise ValueError(f"chamfer: plane must be in [0, 1], got {plane}")
+    normals = surface_normals(pc2, backend=backend) if plane > 0 else None
+    o12, i12 = nearest_offset(p_warped, pc2, backend)
+    o21, _ = nearest_offset(pc2, p_warped, backend)
+    n12 = None if normals is None else torch.gather(normals, 1, i12[..., None].expand(-1, -1, 3))
+    (d12, f12), (d21, f21) = _pair_sq_dist(o12, n12, plane), _pair_sq_dist(o21, normals, plane)
     if math.isfinite(truncate):
-        d12, d21 = d12.clamp(max=truncate * truncate), d21.clamp(max=truncate * truncate)
+        cap = truncate * truncate
+        d12, d21 = torch.where(f12 > cap, cap, d12), torch.where(f21 > cap, cap, d21)
     return masked_mean(d12, mask1) + masked_mean(d21, mask2)
 
 

@@ -89,7 +89,7 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         out["ds"] = dynamic_static(level.flow_o, level.static_flow, level.flow_d)
     if w.use_chamfer:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
-                                 w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf)
+                                 w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend)
     if w.static_anchor > 0:
