@@ -68,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
             pruned = view_pruned(net)
             polished = rigid_polished(pruned)  # the demo's "+ view pruning + rigid polish (+ refinement)" rows
             methods = [net, pruned, polished, NSFPMethod(NSFPConfig(device=dev)),
-                       RefinedMethod(polished, RefineConfig(device=dev)), RefinedMethod(pruned, RefineConfig(device=dev))]
+                       # the demo's settings: a registered ego-motion is refined with after_registration
+                       RefinedMethod(polished, RefineConfig.after_registration(device=dev)),
+                       RefinedMethod(pruned, RefineConfig(device=dev))]
             for res, m in zip(run_protocol(split, methods, cfg, progress=False), methods):
                 last = getattr(m, "last", None)
                 its = str(last.iterations) if last is not None else "–"
