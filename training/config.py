@@ -183,6 +183,12 @@ class LossWeights:
         point-to-point distance pulls a point that lands between two samples of a surface onto one of them;
         the normal component pulls onto the surface only (a departure; docs/learned-flow.md, fourteenth
         round). 0 = the paper's eq. 13.
+    laplacian_plane: λ in [0, 1]; > 0: every level's Laplacian term counts ``(1 − λ)`` of its squared
+        difference plus ``λ`` of its squared component along the surface normal at the warped point's nearest
+        frame-(t+1) point (:func:`training.losses.laplacian.laplacian`). The Laplacian of a sample lies
+        mostly along its surface and differs between two samples of the same surface, so its plain form
+        pulls static points along the surface at the true flow as the point-to-point Chamfer term does
+        (a departure; docs/learned-flow.md, fourteenth round). 0 = the paper's eq. 16.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -208,6 +214,7 @@ class LossWeights:
     gate_pull: float = 0.0
     chamfer_truncate: float = 0.0
     chamfer_plane: float = 0.0
+    laplacian_plane: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -221,8 +228,9 @@ class LossWeights:
         if self.static_anchor < 0 or not self.anchor_tol_m > 0 or self.anchor_tol_rel < 0:
             raise ConfigError(f"need static_anchor >= 0, anchor_tol_m > 0 and anchor_tol_rel >= 0, got "
                               f"{self.static_anchor}, {self.anchor_tol_m}, {self.anchor_tol_rel}")
-        if not 0 <= self.chamfer_plane <= 1:
-            raise ConfigError(f"need 0 <= chamfer_plane <= 1, got {self.chamfer_plane}")
+        if not (0 <= self.chamfer_plane <= 1 and 0 <= self.laplacian_plane <= 1):
+            raise ConfigError(f"need 0 <= chamfer_plane, laplacian_plane <= 1, got {self.chamfer_plane}, "
+                              f"{self.laplacian_plane}")
         if self.chamfer_truncate < 0:
             raise ConfigError(f"need chamfer_truncate >= 0 (metres; 0 = none), got {self.chamfer_truncate}")
         if self.ego_motion < 0 or self.gate_pull < 0:

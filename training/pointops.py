@@ -161,3 +161,23 @@ def three_nn_interpolate(
 ) -> Tensor:
     """PointNet++'s feature propagation weights: :func:`knn_interpolate` with ``k = 3``."""
     return knn_interpolate(query_xyz, ref_xyz, ref_feat, 3, eps, backend)
+
+
+NORMAL_K = 8
+"""Points (the point itself included) whose covariance gives a frame-2 point's surface normal."""
+
+
+def surface_normals(points: Tensor, k: int = NORMAL_K, backend: KnnBackend = "auto") -> Tensor:
+    """Unit normals (B, N, 3) of the surface through each of ``points`` (B, N, 3), sign arbitrary.
+
+    The normal is the direction of least spread of the point's ``k`` nearest points (itself included):
+    the eigenvector of the smallest eigenvalue of their covariance. No gradient (the normals are a
+    property of the fixed frame-2 cloud). Where fewer than three points span a plane the direction is
+    arbitrary; the losses' blend (``loss.chamfer_plane`` < 1) keeps a share of the plain distance there.
+    """
+    with torch.no_grad():
+        _, idx = knn(points, points, min(k, points.shape[1]), backend)
+        near = group(points, idx).double()
+        centred = near - near.mean(dim=2, keepdim=True)
+        _, vectors = torch.linalg.eigh(centred.transpose(-1, -2) @ centred)
+        return vectors[..., 0].to(points.dtype)

@@ -22,7 +22,7 @@ from training.losses import (
     nearest_sq_dist,
     neighbours,
 )
-from training.losses.chamfer import surface_normals
+from training.pointops import surface_normals
 
 F64 = torch.float64
 

@@ -9,7 +9,7 @@ from torch import Tensor
 
 from training.knn import KnnBackend, knn
 from training.losses._common import check_points
-from training.pointops import group
+from training.pointops import group, surface_normals
 
 
 def nearest_sq_dist(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") -> Tensor:
@@ -29,26 +29,6 @@ def nearest_offset(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") -> 
     """
     _, idx = knn(query, ref, 1, backend)
     return group(ref, idx)[:, :, 0] - query, idx[..., 0]
-
-
-NORMAL_K = 8
-"""Points (the point itself included) whose covariance gives a frame-2 point's surface normal."""
-
-
-def surface_normals(points: Tensor, k: int = NORMAL_K, backend: KnnBackend = "auto") -> Tensor:
-    """Unit normals (B, N, 3) of the surface through each of ``points`` (B, N, 3), sign arbitrary.
-
-    The normal is the direction of least spread of the point's ``k`` nearest points (itself included):
-    the eigenvector of the smallest eigenvalue of their covariance. No gradient (the normals are a
-    property of the fixed frame-2 cloud). Where fewer than three points span a plane the direction is
-    arbitrary; the blend in :func:`chamfer` keeps a share of the plain distance for such places.
-    """
-    with torch.no_grad():
-        _, idx = knn(points, points, min(k, points.shape[1]), backend)
-        near = group(points, idx).double()
-        centred = near - near.mean(dim=2, keepdim=True)
-        _, vectors = torch.linalg.eigh(centred.transpose(-1, -2) @ centred)
-        return vectors[..., 0].to(points.dtype)
 
 
 def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float) -> tuple[Tensor, Tensor]:

@@ -7,7 +7,7 @@ from torch import Tensor
 
 from training.knn import KnnBackend, knn
 from training.losses._common import check_points
-from training.pointops import group, knn_interpolate
+from training.pointops import group, knn_interpolate, surface_normals
 
 
 def neighbours(points: Tensor, k: int, backend: KnnBackend = "auto") -> Tensor:
@@ -48,6 +48,7 @@ def laplacian(
     k: int = 10,
     k_interp: int = 5,
     backend: KnnBackend = "auto",
+    plane: float = 0.0,
 ) -> Tensor:
     """``L_LR = mean_{p̄ ∈ P̄} ‖γ(p̄) − γ̄(p̄)‖²`` (eq. 16), m².
 
@@ -62,6 +63,12 @@ def laplacian(
     including the point and divides by 9, i.e. 9 others). The squared norm is averaged over the warped
     points and the batch (the paper writes Σ). Gradient flows through the warped points, both in γ and
     in the interpolation weights; neighbour indices carry none.
+
+    ``plane`` λ in [0, 1] (0 = the paper): the squared difference ``‖r‖²`` becomes ``(1 − λ) ‖r‖² +
+    λ (r · n)²``, ``n`` the surface normal at the warped point's nearest pc2 point
+    (:func:`training.pointops.surface_normals`). On a surface the Laplacian of a sample lies mostly along
+    the surface and depends on where the samples happen to fall, so two samples of the same surface differ
+    there even at the true flow; its normal component is the surface's curvature, which they share.
     """
     check_points("laplacian", "p_warped", p_warped)
     B, n, _ = p_warped.shape
@@ -70,4 +77,10 @@ def laplacian(
     gamma_warped = laplacian_coordinates(p_warped, neighbours(pc1, k, backend))
     gamma_pc2 = laplacian_coordinates(pc2, neighbours(pc2, k, backend))
     gamma_interp = knn_interpolate(p_warped, pc2, gamma_pc2, k=k_interp, backend=backend)
-    return ((gamma_warped - gamma_interp) ** 2).sum(-1).mean()
+    diff = gamma_warped - gamma_interp
+    full = (diff ** 2).sum(-1)
+    if plane <= 0:
+        return full.mean()
+    _, near = knn(p_warped, pc2, 1, backend)
+    normal = group(surface_normals(pc2, backend=backend), near)[:, :, 0]
+    return ((1 - plane) * full + plane * (diff * normal).sum(-1) ** 2).mean()

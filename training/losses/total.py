@@ -91,7 +91,8 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
                                  w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane)
     if w.use_laplacian:
-        out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend)
+        out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend,
+                                       w.laplacian_plane)
     if w.static_anchor > 0:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
                                    w.anchor_tol_rel, w.depth_edge_tolerance)
