@@ -20,13 +20,15 @@ def synth_cache(synth_root, tmp_path_factory):
 @pytest.mark.parametrize("truncate, plane", [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0)])
 def test_truth_has_the_lowest_weighted_loss_at_every_level(synth_cache, truncate, plane):
     """The paper's loss, with the Chamfer term truncated at 2 m (``loss.chamfer_truncate``), and truncated
-    in its point-to-plane form (``loss.chamfer_plane``)."""
+    in the point-to-plane forms of the Chamfer and Laplacian terms (``loss.chamfer_plane``,
+    ``loss.laplacian_plane``)."""
     from training.audit import AuditConfig, audit
     from training.config import LossWeights
 
     cfg = AuditConfig(cache=synth_cache, n_points=2048, level_points=level_points_for(2048)[:4], pairs_max=8,
                       noise_m=(0.05, 0.2), rigid_deg=1.0, rigid_m=0.2,
-                      weights=LossWeights(chamfer_truncate=truncate, chamfer_plane=plane))
+                      weights=LossWeights(chamfer_truncate=truncate, chamfer_plane=plane,
+                                              laplacian_plane=plane))
     rows = audit(cfg)
     by = {(r["candidate"], r["level"]): r for r in rows}
     assert {c for c, _ in by} == {"gt", "gt+noise0.05", "gt+noise0.2", "gt∘rigid", "static"}

@@ -116,6 +116,8 @@ def test_plane_chamfer_drops_the_pull_along_the_surface_and_keeps_the_pull_onto_
     np.testing.assert_allclose(chamfer(far, wall, truncate=1.5, plane=1.0).item(), 2 * 2.25, rtol=1e-12)
     with pytest.raises(ConfigError, match="chamfer_plane"):
         LossWeights(chamfer_plane=1.5)
+    with pytest.raises(ConfigError, match="laplacian_plane"):
+        LossWeights(laplacian_plane=-0.5)
 
 
 # --------------------------------------------------------------------------- dynamic-static
@@ -176,6 +178,32 @@ def test_laplacian_zero_for_rigid_motion_positive_for_non_rigid():
     bent = moved + 0.2 * torch.sin(3.0 * pc1[..., [1, 2, 0]])
     stretch_loss, bent_loss = laplacian(stretched, pc1, pc2).item(), laplacian(bent, pc1, pc2).item()
     assert stretch_loss > 1e-4 and bent_loss > 1e-4
+
+
+def test_plane_laplacian_ignores_where_two_samples_of_a_wall_fall_and_sees_a_bump():
+    """Two different samples of the same wall at the true (zero) flow: their Laplacians differ along the
+    wall, so the paper's term is positive and pulls the points along it; the point-to-plane form (λ = 1) is
+    zero there, and positive once a point is pushed off the wall."""
+    gen = torch.Generator().manual_seed(0)
+    wall = _wall_grid(step=0.5, n=10)[0]
+
+    def sample() -> torch.Tensor:
+        jitter = (torch.rand(wall.shape, generator=gen, dtype=F64) - 0.5) * 0.3
+        jitter[:, 2] = 0.0
+        return (wall + jitter)[None]
+
+    pc1, pc2 = sample(), sample()
+    flow = torch.zeros_like(pc1, requires_grad=True)
+    plain = laplacian(pc1 + flow, pc1, pc2)
+    plain.backward()
+    assert plain.item() > 1e-4 and flow.grad[..., :2].abs().max().item() > 1e-4
+    flow.grad = None
+    plane = laplacian(pc1 + flow, pc1, pc2, plane=1.0)
+    plane.backward()
+    assert plane.item() < 1e-20 and flow.grad.abs().max().item() < 1e-12
+    bump = torch.zeros_like(pc1)
+    bump[0, 45, 2] = 0.3
+    assert laplacian(pc1 + bump, pc1, pc2, plane=1.0).item() > 1e-4
 
 
 def test_laplacian_gradient_finite_with_duplicates_and_exact_hits():
