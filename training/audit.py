@@ -19,6 +19,11 @@ A loss whose minimum is the truth gives ``gt`` the lowest weighted value at ever
 Run as ``python -m training.audit --cache <cache> [--checkpoint run/latest.pt]``; prints one row per
 (candidate, level) with the weighted level loss and every unweighted term, all in the terms' own units
 (depth, DS, Chamfer and Laplacian in m² with the default ``depth_norm="l1"`` making depth metres).
+
+``--pulls`` audits the gradient instead of the value (:func:`truth_pulls`): how hard each term pulls the
+true flow of the static points at the finest level, separately where the true target has a frame-2
+point nearby and where it has none. A loss can have its lowest value at the truth and still pull single
+points off it, towards where their samples happen to fall; a net that sees frame 2 can learn such pulls.
 """
 
 from __future__ import annotations
@@ -155,6 +160,64 @@ def audit(cfg: AuditConfig) -> list[dict]:
     return [{"candidate": name, "level": k, **vals} for (name, k), vals in sums.items()]
 
 
+PULL_TERMS = ("depth", "chamfer", "laplacian")
+
+
+def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) -> dict[str, dict[str, float]]:
+    """The pull of each term on the true flow of static points at the finest level.
+
+    For every audited pair, the finest level's points (``cfg.level_points[0]`` of each cloud, as
+    :func:`audit` samples them without a net) get the true flow ``f_o = gt`` (``f_d = gt − sf_s``); for each
+    term of :data:`PULL_TERMS` the gradient of ``β · n · L`` (the term in the paper's sum form, weighted)
+    with respect to ``f_o`` is taken. A point counts as static where its true flow is within ``static_m``
+    metres of the camera motion's (``sf_s``), as ``near`` where its true target has a frame-2 point of the
+    level within ``far_m`` metres and as ``far`` otherwise. Returns ``{term: {"near": m, "far": m}}``, the
+    mean gradient length in metres over those points and pairs, and ``{"share": {"far": fraction}}``, the
+    share of static points without a near frame-2 point. Zero pull at the truth is what a loss that points
+    at the truth should give; a pull that depends on where the samples fall is a direction the net can
+    learn to follow.
+    """
+    from pipeline.cache import CacheReader
+    from training.knn import knn
+    from training.losses.total import level_terms
+    from training.two_pass import gather
+
+    reader = CacheReader(cfg.cache)
+    with_gt = pairs_with_gt_flow(reader)
+    train, val = split_pairs(reader, cfg.val_fraction)
+    pool = {"train": train, "val": val, "all": list(range(len(reader)))}[cfg.subset]
+    pairs = [i for i in pool if i in with_gt][: cfg.pairs_max]
+    if not pairs:
+        raise ValueError(f"{cfg.cache}: no {cfg.subset} pair with ground-truth flow")
+    data = PairDataset(reader, pairs, cfg.n_points, cfg.seed, colour_features=False, fixed_epoch=-1)
+    beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), cfg.weights.beta))
+    sums = {t: {"near": [0.0, 0], "far": [0.0, 0]} for t in PULL_TERMS}
+    for j in range(len(pairs)):
+        batch = collate([data[j]])
+        idx1, idx2 = (torch.arange(min(cfg.level_points[0], c.shape[1]))[None] for c in (batch.pc1, batch.pc2))
+        pc1, pc2 = gather(batch.pc1, idx1), gather(batch.pc2, idx2)
+        gt, sf = gather(batch.gt_flow, idx1), gather(batch.static_flow, idx1)
+        static = ((gt - sf).norm(dim=-1) < static_m)[0]
+        d2, _ = knn(pc1 + gt, pc2, 1)
+        groups = {"near": static & (d2[0, :, 0] <= far_m ** 2), "far": static & (d2[0, :, 0] > far_m ** 2)}
+        for term in PULL_TERMS:
+            flow = gt.clone().requires_grad_(True)
+            level = LevelInputs(pc1=pc1, pc2=pc2, flow_o=flow, flow_d=gt - sf, static_flow=sf, K=batch.K,
+                                depth2=batch.depth2)
+            terms = level_terms(level, cfg.weights)
+            if term not in terms:
+                continue
+            (beta[term] * pc1.shape[1] * terms[term]).backward()
+            length = flow.grad[0].norm(dim=-1)
+            for name, mask in groups.items():
+                sums[term][name][0] += float(length[mask].sum())
+                sums[term][name][1] += int(mask.sum())
+    out = {t: {g: (v[0] / v[1] if v[1] else float("nan")) for g, v in by.items()} for t, by in sums.items()}
+    near, far = sums[PULL_TERMS[0]]["near"][1], sums[PULL_TERMS[0]]["far"][1]
+    out["share"] = {"far": far / max(near + far, 1)}
+    return out
+
+
 def format_rows(rows: list[dict]) -> str:
     terms = [t for t in ("weighted", "depth", "ds", "chamfer", "laplacian") if any(t in r for r in rows)]
     lines = ["| candidate | level | " + " | ".join(terms) + " |", "|---|---|" + "---|" * len(terms)]
@@ -177,13 +240,25 @@ def main(argv: list[str] | None = None) -> int:
                                              "default: LossWeights'")
     p.add_argument("--chamfer-truncate", type=float, default=0.0,
                    help="metres; > 0: the Chamfer term truncated there (LossWeights.chamfer_truncate; 0 = the paper)")
+    p.add_argument("--chamfer-plane", type=float, default=0.0, help="LossWeights.chamfer_plane (0 = the paper)")
+    p.add_argument("--laplacian-plane", type=float, default=0.0, help="LossWeights.laplacian_plane (0 = the paper)")
+    p.add_argument("--pulls", action="store_true",
+                   help="audit each term's pull on the true flow of static points instead (truth_pulls)")
     args = p.parse_args(argv)
 
     def run(_):
         beta = {"beta": tuple(float(b) for b in args.beta.split(","))} if args.beta else {}
-        weights = LossWeights(chamfer_truncate=args.chamfer_truncate, **beta)
+        weights = LossWeights(chamfer_truncate=args.chamfer_truncate, chamfer_plane=args.chamfer_plane,
+                              laplacian_plane=args.laplacian_plane, **beta)
         cfg = AuditConfig(cache=args.cache, checkpoint=args.checkpoint, subset=args.subset,
                           pairs_max=args.pairs_max, n_points=args.n_points, weights=weights)
+        if args.pulls:
+            pulls = truth_pulls(cfg)
+            print(f"static points without a frame-2 point within 0.5 m: {pulls['share']['far']:.1%}")
+            print("| term | pull, near (m) | pull, far (m) |\n|---|---|---|")
+            for term in PULL_TERMS:
+                print(f"| {term} | {pulls[term]['near']:.4f} | {pulls[term]['far']:.4f} |")
+            return 0
         print(format_rows(audit(cfg)))
         return 0
 

@@ -62,3 +62,23 @@ def test_audit_includes_the_net_on_its_own_points(synth_cache, tmp_path):
     assert sorted({r["level"] for r in rows}) == [0, 1, 2, 3]
     net0 = next(r for r in rows if r["candidate"] == "net" and r["level"] == 0)
     assert net0["ds"] > 0  # the net's dynamic pass is its own, not f − sf_s
+
+
+def test_the_plane_forms_take_most_of_the_pull_off_the_true_static_flow(synth_cache):
+    """At the true flow, the point-to-point Chamfer and Laplacian terms pull static points towards where
+    frame 2's samples fall; their point-to-plane forms keep only the normal part, and the depth term is
+    the same under both."""
+    from training.audit import AuditConfig, truth_pulls
+    from training.config import LossWeights
+
+    def pulls(plane: float) -> dict:
+        return truth_pulls(AuditConfig(cache=synth_cache, n_points=2048, pairs_max=4,
+                                       weights=LossWeights(chamfer_truncate=2.0, chamfer_plane=plane,
+                                                           laplacian_plane=plane)))
+
+    point, plane = pulls(0.0), pulls(1.0)
+    assert 0.0 <= point["share"]["far"] < 1.0
+    for term in ("chamfer", "laplacian"):
+        assert point[term]["near"] > 0
+        assert plane[term]["near"] < 0.5 * point[term]["near"], (term, point[term], plane[term])
+    assert plane["depth"]["near"] == pytest.approx(point["depth"]["near"], rel=1e-6)
