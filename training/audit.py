@@ -111,11 +111,10 @@ def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], i
             for k in range(len(levels))]
 
 
-@torch.no_grad()
-def audit(cfg: AuditConfig) -> list[dict]:
-    """Rows ``{candidate, level, weighted, <terms>}``, each the mean over the audited pairs."""
+def _audited_pairs(cfg: AuditConfig):
+    """The cache's reader and the pairs to audit: ``cfg.subset``'s pairs with ground-truth flow, at most
+    ``cfg.pairs_max`` of them, evenly spread."""
     from pipeline.cache import CacheReader
-    from training.two_pass import gather
 
     reader = CacheReader(cfg.cache)
     with_gt = pairs_with_gt_flow(reader)
@@ -126,6 +125,15 @@ def audit(cfg: AuditConfig) -> list[dict]:
         raise ValueError(f"{cfg.cache}: no {cfg.subset} pair with ground-truth flow")
     if len(pairs) > cfg.pairs_max:
         pairs = [pairs[int(j)] for j in np.linspace(0, len(pairs) - 1, cfg.pairs_max)]
+    return reader, pairs
+
+
+@torch.no_grad()
+def audit(cfg: AuditConfig) -> list[dict]:
+    """Rows ``{candidate, level, weighted, <terms>}``, each the mean over the audited pairs."""
+    from training.two_pass import gather
+
+    reader, pairs = _audited_pairs(cfg)
     net = None
     level_points = tuple(cfg.level_points)
     if cfg.checkpoint:
@@ -177,18 +185,11 @@ def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) ->
     at the truth should give; a pull that depends on where the samples fall is a direction the net can
     learn to follow.
     """
-    from pipeline.cache import CacheReader
     from training.knn import knn
     from training.losses.total import level_terms
     from training.two_pass import gather
 
-    reader = CacheReader(cfg.cache)
-    with_gt = pairs_with_gt_flow(reader)
-    train, val = split_pairs(reader, cfg.val_fraction)
-    pool = {"train": train, "val": val, "all": list(range(len(reader)))}[cfg.subset]
-    pairs = [i for i in pool if i in with_gt][: cfg.pairs_max]
-    if not pairs:
-        raise ValueError(f"{cfg.cache}: no {cfg.subset} pair with ground-truth flow")
+    reader, pairs = _audited_pairs(cfg)
     data = PairDataset(reader, pairs, cfg.n_points, cfg.seed, colour_features=False, fixed_epoch=-1)
     beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), cfg.weights.beta))
     sums = {t: {"near": [0.0, 0], "far": [0.0, 0]} for t in PULL_TERMS}
