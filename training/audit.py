@@ -201,15 +201,12 @@ def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) ->
         static = ((gt - sf).norm(dim=-1) < static_m)[0]
         d2, _ = knn(pc1 + gt, pc2, 1)
         groups = {"near": static & (d2[0, :, 0] <= far_m ** 2), "far": static & (d2[0, :, 0] > far_m ** 2)}
-        for term in PULL_TERMS:
-            flow = gt.clone().requires_grad_(True)
-            level = LevelInputs(pc1=pc1, pc2=pc2, flow_o=flow, flow_d=gt - sf, static_flow=sf, K=batch.K,
-                                depth2=batch.depth2)
-            terms = level_terms(level, cfg.weights)
-            if term not in terms:
-                continue
-            (beta[term] * pc1.shape[1] * terms[term]).backward()
-            length = flow.grad[0].norm(dim=-1)
+        flow = gt.clone().requires_grad_(True)
+        terms = level_terms(LevelInputs(pc1=pc1, pc2=pc2, flow_o=flow, flow_d=gt - sf, static_flow=sf, K=batch.K,
+                                        depth2=batch.depth2), cfg.weights)
+        for term in (t for t in PULL_TERMS if t in terms):
+            grad, = torch.autograd.grad(beta[term] * pc1.shape[1] * terms[term], flow, retain_graph=True)
+            length = grad[0].norm(dim=-1)
             for name, mask in groups.items():
                 sums[term][name][0] += float(length[mask].sum())
                 sums[term][name][1] += int(mask.sum())

@@ -41,7 +41,8 @@ def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float) -> tuple[
 
 
 def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: Tensor | None = None,
-            mask2: Tensor | None = None, truncate: float = math.inf, plane: float = 0.0) -> Tensor:
+            mask2: Tensor | None = None, truncate: float = math.inf, plane: float = 0.0,
+            normals2: Tensor | None = None) -> Tensor:
     """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
 
     ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
@@ -56,16 +57,19 @@ def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: 
     both directions. A point-to-point distance is least at the sample itself, so it pulls every point that
     lands between two samples of a surface onto one of them — a pull along the surface that the true flow
     does not have and that a net which sees pc2 can learn. The normal component keeps the pull onto the
-    surface and drops the one along it. The truncation still reads the plain distance.
+    surface and drops the one along it. The truncation still reads the plain distance. ``normals2`` (B, M, 3):
+    pc2's normals when the caller already has them (computed here otherwise).
     """
     check_points("chamfer", "p_warped", p_warped)
     check_points("chamfer", "pc2", pc2, p_warped.shape[0])
     if plane < 0 or plane > 1:
         raise ValueError(f"chamfer: plane must be in [0, 1], got {plane}")
-    normals = surface_normals(pc2, backend=backend) if plane > 0 else None
+    normals = None
+    if plane > 0:
+        normals = surface_normals(pc2, backend=backend) if normals2 is None else normals2
     o12, i12 = nearest_offset(p_warped, pc2, backend)
     o21, _ = nearest_offset(pc2, p_warped, backend)
-    n12 = None if normals is None else torch.gather(normals, 1, i12[..., None].expand(-1, -1, 3))
+    n12 = None if normals is None else group(normals, i12[..., None])[:, :, 0]
     (d12, f12), (d21, f21) = _pair_sq_dist(o12, n12, plane), _pair_sq_dist(o21, normals, plane)
     if math.isfinite(truncate):
         cap = truncate * truncate

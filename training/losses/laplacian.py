@@ -49,6 +49,7 @@ def laplacian(
     k_interp: int = 5,
     backend: KnnBackend = "auto",
     plane: float = 0.0,
+    normals2: Tensor | None = None,
 ) -> Tensor:
     """``L_LR = mean_{p̄ ∈ P̄} ‖γ(p̄) − γ̄(p̄)‖²`` (eq. 16), m².
 
@@ -69,6 +70,7 @@ def laplacian(
     (:func:`training.pointops.surface_normals`). On a surface the Laplacian of a sample lies mostly along
     the surface and depends on where the samples happen to fall, so two samples of the same surface differ
     there even at the true flow; its normal component is the surface's curvature, which they share.
+    ``normals2`` (B, m, 3): pc2's normals when the caller already has them (computed here otherwise).
     """
     check_points("laplacian", "p_warped", p_warped)
     B, n, _ = p_warped.shape
@@ -82,5 +84,6 @@ def laplacian(
     if plane <= 0:
         return full.mean()
     _, near = knn(p_warped, pc2, 1, backend)
-    normal = group(surface_normals(pc2, backend=backend), near)[:, :, 0]
+    normals = surface_normals(pc2, backend=backend) if normals2 is None else normals2
+    normal = group(normals, near)[:, :, 0]
     return ((1 - plane) * full + plane * (diff * normal).sum(-1) ** 2).mean()

@@ -29,6 +29,7 @@ from training.losses.ego_motion import ego_motion_term
 from training.losses.gate_pull import gate_pull
 from training.losses.laplacian import laplacian
 from training.losses.static_anchor import static_anchor, verified_static
+from training.pointops import surface_normals
 from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
 
 @dataclass
@@ -87,12 +88,15 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         out["depth"] = out["depth1"] + out["depth2"]
     if w.use_ds:
         out["ds"] = dynamic_static(level.flow_o, level.static_flow, level.flow_d)
+    plane = (w.use_chamfer and w.chamfer_plane > 0) or (w.use_laplacian and w.laplacian_plane > 0)
+    normals2 = surface_normals(level.pc2, backend=w.knn_backend) if plane else None  # one estimate, both terms
     if w.use_chamfer:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
-                                 w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane)
+                                 w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane,
+                                 normals2)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend,
-                                       w.laplacian_plane)
+                                     w.laplacian_plane, normals2)
     if w.static_anchor > 0:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
                                    w.anchor_tol_rel, w.depth_edge_tolerance)
