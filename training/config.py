@@ -189,6 +189,11 @@ class LossWeights:
         mostly along its surface and differs between two samples of the same surface, so its plain form
         pulls static points along the surface at the true flow as the point-to-point Chamfer term does
         (a departure; docs/learned-flow.md, fourteenth round). 0 = the paper's eq. 16.
+    flow_smooth: weight of the flow smoothness term at every level (a departure; 0 = the paper): the mean
+        length ‖f_i − f_j‖ (metres) over each frame-t point's ``laplacian_k`` nearest frame-t points
+        (:mod:`training.losses.flow_smooth`). It reads frame t alone, so unlike the Chamfer, Laplacian and
+        depth terms its least value does not depend on where frame (t+1)'s samples fell
+        (docs/learned-flow.md, fifteenth round).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -215,6 +220,7 @@ class LossWeights:
     chamfer_truncate: float = 0.0
     chamfer_plane: float = 0.0
     laplacian_plane: float = 0.0
+    flow_smooth: float = 0.0
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
@@ -233,8 +239,9 @@ class LossWeights:
                               f"{self.laplacian_plane}")
         if self.chamfer_truncate < 0:
             raise ConfigError(f"need chamfer_truncate >= 0 (metres; 0 = none), got {self.chamfer_truncate}")
-        if self.ego_motion < 0 or self.gate_pull < 0:
-            raise ConfigError(f"need ego_motion >= 0 and gate_pull >= 0, got {self.ego_motion}, {self.gate_pull}")
+        if self.ego_motion < 0 or self.gate_pull < 0 or self.flow_smooth < 0:
+            raise ConfigError(f"need ego_motion >= 0, gate_pull >= 0 and flow_smooth >= 0, got {self.ego_motion}, "
+                              f"{self.gate_pull}, {self.flow_smooth}")
         if self.alpha_order not in ALPHA_ORDERS:
             raise ConfigError(f"alpha_order must be one of {ALPHA_ORDERS}, got {self.alpha_order!r}")
         if self.depth_variant not in DEPTH_VARIANTS:

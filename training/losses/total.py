@@ -5,7 +5,9 @@
 plus, where ``LossWeights.static_anchor`` > 0 (a departure), ``α_k · static_anchor · L^k_SA``
 (:mod:`training.losses.static_anchor`), and where ``LossWeights.ego_motion`` > 0 (a departure),
 ``α_k · ego_motion · L^k_EM`` (:mod:`training.losses.ego_motion`), and where ``LossWeights.gate_pull`` > 0
-(a departure), ``α_k · gate_pull · L^k_GP`` (:mod:`training.losses.gate_pull`).
+(a departure), ``α_k · gate_pull · L^k_GP`` (:mod:`training.losses.gate_pull`), and where
+``LossWeights.flow_smooth`` > 0 (a departure), ``α_k · flow_smooth · L^k_FS``
+(:mod:`training.losses.flow_smooth`).
 
 Levels are given finest first (2048, 1024, 256, 64 points at the paper's defaults). Every term is a
 per-point mean (see each function), so a level's terms are on the same scale whatever its number of
@@ -26,6 +28,7 @@ from training.losses.chamfer import chamfer
 from training.losses.depth_consistency import depth_consistency
 from training.losses.dynamic_static import dynamic_static
 from training.losses.ego_motion import ego_motion_term
+from training.losses.flow_smooth import flow_smoothness
 from training.losses.gate_pull import gate_pull
 from training.losses.laplacian import laplacian
 from training.losses.static_anchor import static_anchor, verified_static
@@ -73,8 +76,8 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
 
 def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
-    ``laplacian``, ``anchor``, ``ego``, ``pull`` (scalars; m², the depth terms in metres with
-    ``depth_norm="l1"``, the anchor and the ego-motion term in metres)."""
+    ``laplacian``, ``anchor``, ``ego``, ``pull``, ``smooth`` (scalars; m², the depth terms in metres with
+    ``depth_norm="l1"``, the anchor, the ego-motion and the smoothness term in metres)."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o
@@ -109,6 +112,8 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         if level.gap_o is None or level.gap_d is None:
             raise ConfigError("loss.gate_pull needs a net that reports its gate gaps (model.ego_head true)")
         out["pull"] = gate_pull(level.gap_o) + gate_pull(level.gap_d)
+    if w.flow_smooth > 0:
+        out["smooth"] = flow_smoothness(level.pc1, level.flow_o, w.laplacian_k, w.knn_backend)
     return out
 
 
@@ -135,6 +140,8 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
             weighted = weighted + weights.ego_motion * terms["ego"]
         if "pull" in terms:
             weighted = weighted + weights.gate_pull * terms["pull"]
+        if "smooth" in terms:
+            weighted = weighted + weights.flow_smooth * terms["smooth"]
         weighted = alpha * weighted
         total = weighted if total is None else total + weighted
         for name, value in terms.items():

@@ -1,0 +1,91 @@
+"""The flow smoothness term (training/losses/flow_smooth.py): zero for one shared motion, a pull that
+brings a stray point back to its neighbours, blind to frame (t+1), and its place in the multi-level loss."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.errors import ConfigError
+from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
+from training.losses.flow_smooth import flow_smoothness
+
+
+def _grid(n_side: int = 8, spacing: float = 0.5) -> torch.Tensor:
+    """A flat wall of n_side² points at z = 10 m, ``spacing`` metres apart."""
+    u = torch.arange(n_side, dtype=torch.float64) * spacing
+    x, y = torch.meshgrid(u, u, indexing="ij")
+    return torch.stack([x.reshape(-1), y.reshape(-1), torch.full((n_side * n_side,), 10.0, dtype=torch.float64)],
+                       -1)[None]
+
+
+def test_one_shared_motion_costs_nothing_and_a_stray_point_costs_its_departure():
+    pc1 = _grid()
+    flow = torch.tensor([0.3, 0.0, -1.2], dtype=torch.float64).expand_as(pc1).clone()
+    assert flow_smoothness(pc1, flow, k=4).item() == pytest.approx(0.0, abs=1e-9)
+    stray = 27  # an interior point: its 4 nearest points are its grid neighbours, and it is theirs
+    flow[0, stray] += torch.tensor([0.0, 0.4, 0.0], dtype=torch.float64)
+    n, k = pc1.shape[1], 4
+    # its own 4 pairs and the 4 pairs in which it is a neighbour, each 0.4 m (the length smoothed at 1 mm)
+    expected = 8 * (np.sqrt(0.16 + 1e-6) - 1e-3) / (n * k)
+    assert flow_smoothness(pc1, flow, k=4).item() == pytest.approx(expected, rel=1e-9)
+
+
+def test_descent_brings_a_stray_point_back_and_leaves_a_shared_motion_alone():
+    pc1 = _grid()
+    base = torch.tensor([0.3, 0.0, -1.2], dtype=torch.float64)
+    flow = base.expand_as(pc1).clone()
+    flow[0, 27] += torch.tensor([0.0, 0.4, 0.0], dtype=torch.float64)
+    flow.requires_grad_(True)
+    opt = torch.optim.SGD([flow], lr=0.5)
+    for _ in range(400):
+        opt.zero_grad()
+        flow_smoothness(pc1, flow, k=4).backward()
+        opt.step()
+    flow = flow.detach()
+    assert (flow[0, 27] - base).norm() < 0.05  # back within 5 cm of its neighbours' motion
+    others = torch.cat([flow[0, :27], flow[0, 28:]])
+    # the neighbours moved towards it by as much as it moved back (the term is symmetric), spread over many points
+    assert (others - base).norm(dim=-1).max() < 0.1
+
+
+def test_two_rigid_bodies_apart_cost_nothing_and_the_term_is_zero_for_one_point():
+    a, b = _grid(4), _grid(4) + torch.tensor([20.0, 0.0, 0.0], dtype=torch.float64)
+    pc1 = torch.cat([a, b], 1)
+    flow = torch.cat([torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64).expand_as(a),
+                      torch.tensor([1.5, 0.0, 0.5], dtype=torch.float64).expand_as(b)], 1)
+    assert flow_smoothness(pc1, flow, k=5).item() == pytest.approx(0.0, abs=1e-9)  # no neighbourhood spans both
+    one = torch.zeros(1, 1, 3, requires_grad=True)
+    value = flow_smoothness(torch.zeros(1, 1, 3), one)
+    value.backward()
+    assert value.item() == 0.0 and one.grad is not None and one.grad.abs().sum() == 0
+
+
+def _levels() -> list[LevelInputs]:
+    K = torch.tensor([[[40.0, 0.0, 23.5], [0.0, 40.0, 15.5], [0.0, 0.0, 1.0]]])
+    levels = []
+    for n, seed in ((60, 0), (30, 1)):
+        g = torch.Generator().manual_seed(seed)
+        pc1 = torch.rand(1, n, 3, generator=g) * 10 + torch.tensor([-5.0, -1.0, 5.0])
+        sf = torch.tensor([0.1, 0.0, -0.8]).expand(1, n, 3).clone()
+        flow_o = sf + 0.2 * torch.randn(1, n, 3, generator=g)
+        levels.append(LevelInputs(pc1=pc1, pc2=pc1 + sf, flow_o=flow_o, flow_d=torch.zeros_like(flow_o),
+                                  static_flow=sf, K=K, depth2=torch.full((1, 32, 48), 10.0)))
+    return levels
+
+
+def test_the_term_enters_every_level_with_its_weight_and_is_off_by_default():
+    weights = dict(alpha=(0.02, 0.04))
+    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
+    assert not any(k.endswith("/smooth") for k in terms)
+    smoothed, terms_s = multi_level_loss(_levels(), LossWeights(flow_smooth=0.5, **weights))
+    levels = _levels()
+    for k, level in enumerate(levels):
+        assert terms_s[f"l{k}/smooth"] == pytest.approx(flow_smoothness(level.pc1, level.flow_o).item(), rel=1e-6)
+        assert terms_s[f"l{k}/smooth"] > 0.1  # 0.2 m noise per component: neighbours differ by ≈ 0.45 m
+    alphas = level_alphas(LossWeights(**weights), 2)
+    added = sum(a * 0.5 * terms_s[f"l{k}/smooth"] for k, a in enumerate(alphas))
+    np.testing.assert_allclose(smoothed.item() - plain.item(), added, rtol=1e-5)
+    with pytest.raises(ConfigError, match="flow_smooth"):
+        LossWeights(flow_smooth=-1.0)
