@@ -168,7 +168,7 @@ def audit(cfg: AuditConfig) -> list[dict]:
     return [{"candidate": name, "level": k, **vals} for (name, k), vals in sums.items()]
 
 
-PULL_TERMS = ("depth", "chamfer", "laplacian")
+PULL_TERMS = ("depth", "chamfer", "laplacian", "smooth")
 
 
 def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) -> dict[str, dict[str, float]]:
@@ -176,8 +176,8 @@ def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) ->
 
     For every audited pair, the finest level's points (``cfg.level_points[0]`` of each cloud, as
     :func:`audit` samples them without a net) get the true flow ``f_o = gt`` (``f_d = gt − sf_s``); for each
-    term of :data:`PULL_TERMS` the gradient of ``β · n · L`` (the term in the paper's sum form, weighted)
-    with respect to ``f_o`` is taken. A point counts as static where its true flow is within ``static_m``
+    term of :data:`PULL_TERMS` the gradient of ``β · n · L`` (the term in the paper's sum form, weighted;
+    the smoothness term, where ``weights.flow_smooth`` > 0, with that weight) with respect to ``f_o`` is taken. A point counts as static where its true flow is within ``static_m``
     metres of the camera motion's (``sf_s``), as ``near`` where its true target has a frame-2 point of the
     level within ``far_m`` metres and as ``far`` otherwise. Returns ``{term: {"near": m, "far": m}}``, the
     mean gradient length in metres over those points and pairs, and ``{"share": {"far": fraction}}``, the
@@ -191,7 +191,7 @@ def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) ->
 
     reader, pairs = _audited_pairs(cfg)
     data = PairDataset(reader, pairs, cfg.n_points, cfg.seed, colour_features=False, fixed_epoch=-1)
-    beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), cfg.weights.beta))
+    beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), cfg.weights.beta), smooth=cfg.weights.flow_smooth)
     sums = {t: {"near": [0.0, 0], "far": [0.0, 0]} for t in PULL_TERMS}
     for j in range(len(pairs)):
         batch = collate([data[j]])
@@ -240,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="metres; > 0: the Chamfer term truncated there (LossWeights.chamfer_truncate; 0 = the paper)")
     p.add_argument("--chamfer-plane", type=float, default=0.0, help="LossWeights.chamfer_plane (0 = the paper)")
     p.add_argument("--laplacian-plane", type=float, default=0.0, help="LossWeights.laplacian_plane (0 = the paper)")
+    p.add_argument("--flow-smooth", type=float, default=0.0, help="LossWeights.flow_smooth (0 = the paper)")
     p.add_argument("--pulls", action="store_true",
                    help="audit each term's pull on the true flow of static points instead (truth_pulls)")
     args = p.parse_args(argv)
@@ -247,14 +248,14 @@ def main(argv: list[str] | None = None) -> int:
     def run(_):
         beta = {"beta": tuple(float(b) for b in args.beta.split(","))} if args.beta else {}
         weights = LossWeights(chamfer_truncate=args.chamfer_truncate, chamfer_plane=args.chamfer_plane,
-                              laplacian_plane=args.laplacian_plane, **beta)
+                              laplacian_plane=args.laplacian_plane, flow_smooth=args.flow_smooth, **beta)
         cfg = AuditConfig(cache=args.cache, checkpoint=args.checkpoint, subset=args.subset,
                           pairs_max=args.pairs_max, n_points=args.n_points, weights=weights)
         if args.pulls:
             pulls = truth_pulls(cfg)
             print(f"static points without a frame-2 point within 0.5 m: {pulls['share']['far']:.1%}")
             print("| term | pull, near (m) | pull, far (m) |\n|---|---|---|")
-            for term in PULL_TERMS:
+            for term in (t for t in PULL_TERMS if t != "smooth" or args.flow_smooth > 0):
                 print(f"| {term} | {pulls[term]['near']:.4f} | {pulls[term]['far']:.4f} |")
             return 0
         print(format_rows(audit(cfg)))

@@ -190,10 +190,11 @@ class LossWeights:
         pulls static points along the surface at the true flow as the point-to-point Chamfer term does
         (a departure; docs/learned-flow.md, fourteenth round). 0 = the paper's eq. 16.
     flow_smooth: weight of the flow smoothness term at every level (a departure; 0 = the paper): the mean
-        length ‖f_i − f_j‖ (metres) over each frame-t point's ``laplacian_k`` nearest frame-t points
-        (:mod:`training.losses.flow_smooth`). It reads frame t alone, so unlike the Chamfer, Laplacian and
-        depth terms its least value does not depend on where frame (t+1)'s samples fell
-        (docs/learned-flow.md, fifteenth round).
+        length ‖r_i − r_j‖ (metres) of the flow's departure from the camera's motion, ``r = f_o − sf_s``,
+        over each frame-t point's ``laplacian_k`` nearest frame-t points (:mod:`training.losses.flow_smooth`).
+        It reads frame t and stage one's pose alone, so unlike the Chamfer, Laplacian and depth terms its
+        least value does not depend on where frame (t+1)'s samples fell (docs/learned-flow.md, fifteenth
+        round).
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)

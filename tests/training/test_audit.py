@@ -67,14 +67,15 @@ def test_audit_includes_the_net_on_its_own_points(synth_cache, tmp_path):
 def test_the_plane_forms_take_most_of_the_pull_off_the_true_static_flow(synth_cache):
     """At the true flow, the point-to-point Chamfer and Laplacian terms pull static points towards where
     frame 2's samples fall; their point-to-plane forms keep only the normal part, and the depth term is
-    the same under both."""
+    the same under both. The smoothness term reads frame t alone: on static points away from movers the
+    true flow is one rigid motion's, so its pull there is far below the Chamfer term's."""
     from training.audit import AuditConfig, truth_pulls
     from training.config import LossWeights
 
     def pulls(plane: float) -> dict:
         return truth_pulls(AuditConfig(cache=synth_cache, n_points=2048, pairs_max=4,
                                        weights=LossWeights(chamfer_truncate=2.0, chamfer_plane=plane,
-                                                           laplacian_plane=plane)))
+                                                           laplacian_plane=plane, flow_smooth=plane)))
 
     point, plane = pulls(0.0), pulls(1.0)
     assert 0.0 <= point["share"]["far"] < 1.0
@@ -82,3 +83,5 @@ def test_the_plane_forms_take_most_of_the_pull_off_the_true_static_flow(synth_ca
         assert point[term]["near"] > 0
         assert plane[term]["near"] < 0.5 * point[term]["near"], (term, point[term], plane[term])
     assert plane["depth"]["near"] == pytest.approx(point["depth"]["near"], rel=1e-6)
+    assert point["smooth"]["near"] != point["smooth"]["near"]  # off: not measured (nan)
+    assert 0 <= plane["smooth"]["near"] < 0.25 * point["chamfer"]["near"], (plane["smooth"], point["chamfer"])

@@ -113,7 +113,7 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
             raise ConfigError("loss.gate_pull needs a net that reports its gate gaps (model.ego_head true)")
         out["pull"] = gate_pull(level.gap_o) + gate_pull(level.gap_d)
     if w.flow_smooth > 0:
-        out["smooth"] = flow_smoothness(level.pc1, level.flow_o, w.laplacian_k, w.knn_backend)
+        out["smooth"] = flow_smoothness(level.pc1, level.flow_o - level.static_flow, w.laplacian_k, w.knn_backend)
     return out
 
 
