@@ -50,7 +50,8 @@ def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scal
     paper = {"model.ego_head": False, "model.eval_norm_stats": "running", "data.lidar_rings": 0.0,
              "data.density_drop": 0.0, "data.ground_jitter_m": 0.0, "data.ego_speed_scale": (1.0, 1.0),
              "data.workers": 0, "progress": False, "model.ego_open_gradient": False, "model.zero_flow_heads": False,
-             "loss.gate_pull": 0.0, "loss.chamfer_truncate": 0.0}
+             "loss.gate_pull": 0.0, "loss.chamfer_truncate": 0.0, "loss.chamfer_plane": 0.0,
+             "loss.laplacian_plane": 0.0, "loss.flow_smooth": 0.0}
     return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
 
 

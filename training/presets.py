@@ -18,7 +18,11 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     (``model.translation_vote``, tenth round), the ego head's gate straight-through with flow heads that start
     at zero (``model.ego_open_gradient``, ``model.zero_flow_heads``, eleventh round), the own flows it holds
     pulled back to its output (``loss.gate_pull``) and the Chamfer term truncated at 2 m
-    (``loss.chamfer_truncate``, twelfth round); ``overrides`` are dotted ``{"model.ego_head": False}`` pairs."""
+    (``loss.chamfer_truncate``, twelfth round), the Chamfer and Laplacian terms counted along frame 2's surface
+    normals (``loss.chamfer_plane``, ``loss.laplacian_plane``, fourteenth round) with the flow's departures
+    from the camera's motion kept smooth over frame t (``loss.flow_smooth``, fifteenth round: with these
+    three, longer training no longer makes the net worse); ``overrides`` are dotted
+    ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
 
@@ -28,7 +32,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "data": {"n_points": n_points, "workers": 1, "colour_features": False,
                  "lidar_rings": 0.5, "density_drop": 0.3, "ground_jitter_m": 0.3, "ego_speed_scale": [0.5, 2.0]},
         "optim": {"batch_size": 4},
-        "loss": {"ego_motion": 1.0, "gate_pull": 1.0, "chamfer_truncate": 2.0},
+        "loss": {"ego_motion": 1.0, "gate_pull": 1.0, "chamfer_truncate": 2.0, "chamfer_plane": 1.0,
+                 "laplacian_plane": 1.0, "flow_smooth": 0.3},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True, "l0_cost_volume": True, "norm": "layer",
                   "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True},
