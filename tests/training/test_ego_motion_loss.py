@@ -3,12 +3,12 @@ default = the paper), the rigid flows the ego head reports for it, and that it t
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
 from core.errors import ConfigError
-from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
+from _loss_levels import check_enters_every_level
+from training.losses import LevelInputs, LossWeights, multi_level_loss
 from training.losses.ego_motion import ego_motion_term
 from training.model.ego_motion import weighted_rigid_fit
 
@@ -44,17 +44,11 @@ def _levels(with_rigid: bool = True, with_gaps: bool = False) -> list[LevelInput
 
 
 def test_the_term_enters_every_level_with_its_weight_and_is_off_by_default():
-    weights = dict(alpha=(0.02, 0.04))
-    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
-    assert not any(k.endswith("/ego") for k in terms)
-    with_ego, terms_e = multi_level_loss(_levels(), LossWeights(ego_motion=2.0, **weights))
-    alphas = level_alphas(LossWeights(**weights), 2)
+    terms = check_enters_every_level(_levels, "ego_motion", "ego", 2.0, alpha=(0.02, 0.04))
     for k in range(2):
-        assert terms_e[f"l{k}/ego"] == pytest.approx(0.3, abs=2e-3)
-    added = sum(a * 2.0 * terms_e[f"l{k}/ego"] for k, a in enumerate(alphas))
-    np.testing.assert_allclose(with_ego.item() - plain.item(), added, rtol=1e-5)
+        assert terms[f"l{k}/ego"] == pytest.approx(0.3, abs=2e-3)
     with pytest.raises(ConfigError, match="ego_head"):
-        multi_level_loss(_levels(with_rigid=False), LossWeights(ego_motion=1.0, **weights))
+        multi_level_loss(_levels(with_rigid=False), LossWeights(ego_motion=1.0, alpha=(0.02, 0.04)))
     with pytest.raises(ConfigError, match="ego_motion"):
         LossWeights(ego_motion=-0.5)
 
@@ -62,17 +56,11 @@ def test_the_term_enters_every_level_with_its_weight_and_is_off_by_default():
 def test_the_gate_pull_enters_every_level_with_its_weight_and_is_off_by_default():
     """The gate pull (training/losses/gate_pull.py; more in tests/training/test_gate_pull.py): the mean gap
     of both passes, α_k · gate_pull at every level."""
-    weights = dict(alpha=(0.02, 0.04))
-    plain, terms = multi_level_loss(_levels(with_gaps=True), LossWeights(**weights))
-    assert not any(k.endswith("/pull") for k in terms)
-    pulled, terms_p = multi_level_loss(_levels(with_gaps=True), LossWeights(gate_pull=2.0, **weights))
+    terms = check_enters_every_level(lambda: _levels(with_gaps=True), "gate_pull", "pull", 2.0, alpha=(0.02, 0.04))
     for k in range(2):
-        assert terms_p[f"l{k}/pull"] == pytest.approx(0.06, rel=1e-6)  # both passes: 0.04 + 0.02 m²
-    alphas = level_alphas(LossWeights(**weights), 2)
-    added = sum(a * 2.0 * terms_p[f"l{k}/pull"] for k, a in enumerate(alphas))
-    np.testing.assert_allclose(pulled.item() - plain.item(), added, rtol=1e-5)
+        assert terms[f"l{k}/pull"] == pytest.approx(0.06, rel=1e-6)  # both passes: 0.04 + 0.02 m²
     with pytest.raises(ConfigError, match="ego_head"):
-        multi_level_loss(_levels(), LossWeights(gate_pull=1.0, **weights))
+        multi_level_loss(_levels(), LossWeights(gate_pull=1.0, alpha=(0.02, 0.04)))
     with pytest.raises(ConfigError, match="gate_pull"):
         LossWeights(gate_pull=-1.0)
 

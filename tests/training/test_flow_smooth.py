@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from core.errors import ConfigError
-from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
+from _loss_levels import check_enters_every_level
+from training.losses import LevelInputs, LossWeights
 from training.losses.flow_smooth import flow_smoothness
 
 
@@ -77,18 +78,11 @@ def _levels() -> list[LevelInputs]:
 
 
 def test_the_term_enters_every_level_with_its_weight_and_is_off_by_default():
-    weights = dict(alpha=(0.02, 0.04))
-    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
-    assert not any(k.endswith("/smooth") for k in terms)
-    smoothed, terms_s = multi_level_loss(_levels(), LossWeights(flow_smooth=0.5, **weights))
-    levels = _levels()
-    for k, level in enumerate(levels):
+    terms = check_enters_every_level(_levels, "flow_smooth", "smooth", 0.5, alpha=(0.02, 0.04))
+    for k, level in enumerate(_levels()):
         departure = level.flow_o - level.static_flow
-        assert terms_s[f"l{k}/smooth"] == pytest.approx(flow_smoothness(level.pc1, departure).item(), rel=1e-6)
-        assert terms_s[f"l{k}/smooth"] > 0.1  # 0.2 m noise per component: neighbours differ by ≈ 0.45 m
-    alphas = level_alphas(LossWeights(**weights), 2)
-    added = sum(a * 0.5 * terms_s[f"l{k}/smooth"] for k, a in enumerate(alphas))
-    np.testing.assert_allclose(smoothed.item() - plain.item(), added, rtol=1e-5)
+        assert terms[f"l{k}/smooth"] == pytest.approx(flow_smoothness(level.pc1, departure).item(), rel=1e-6)
+        assert terms[f"l{k}/smooth"] > 0.1  # 0.2 m noise per component: neighbours differ by ≈ 0.45 m
     with pytest.raises(ConfigError, match="flow_smooth"):
         LossWeights(flow_smooth=-1.0)
 

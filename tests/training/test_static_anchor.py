@@ -3,13 +3,13 @@ term's value, and its place in the multi-level loss (off by default = the paper)
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
 from core import geometry as g
 from core.errors import ConfigError
-from training.losses import LevelInputs, LossWeights, level_alphas, multi_level_loss
+from _loss_levels import check_enters_every_level
+from training.losses import LevelInputs, LossWeights
 from training.losses.static_anchor import static_anchor, verified_static
 
 H, W = 32, 48
@@ -73,14 +73,8 @@ def _levels() -> list[LevelInputs]:
 
 
 def test_the_anchor_enters_every_level_with_its_weight_and_is_off_by_default():
-    weights = dict(alpha=(0.02, 0.04))
-    plain, terms = multi_level_loss(_levels(), LossWeights(**weights))
-    assert not any(k.endswith("/anchor") for k in terms)
-    anchored, terms_a = multi_level_loss(_levels(), LossWeights(static_anchor=2.0, **weights))
-    alphas = level_alphas(LossWeights(**weights), 2)
-    added = sum(a * 2.0 * terms_a[f"l{k}/anchor"] for k, a in enumerate(alphas))
-    assert all(terms_a[f"l{k}/anchor"] > 0.05 for k in range(2))
-    np.testing.assert_allclose(anchored.item() - plain.item(), added, rtol=1e-5)
+    terms = check_enters_every_level(_levels, "static_anchor", "anchor", 2.0, alpha=(0.02, 0.04))
+    assert all(terms[f"l{k}/anchor"] > 0.05 for k in range(2))
 
 
 def test_anchor_config_errors():
