@@ -39,13 +39,15 @@ from training.losses.laplacian import neighbours
 from training.pointops import group
 
 
-def flow_smoothness(pc1: Tensor, departure: Tensor, k: int = 10, backend: KnnBackend = "auto") -> Tensor:
+def flow_smoothness(pc1: Tensor, departure: Tensor, k: int = 10, backend: KnnBackend = "auto",
+                    neighbours1: Tensor | None = None) -> Tensor:
     """``L_FS`` for ``departure`` (B, n, 3; ``f_o − sf_s``, metres) at ``pc1`` (B, n, 3) over each point's
-    ``k`` nearest other points of ``pc1`` (no gradient through the neighbourhoods). A scalar in metres; zero
-    with fewer than two points."""
+    ``k`` nearest other points of ``pc1`` (no gradient through the neighbourhoods; ``neighbours1``: those
+    indices, :func:`~training.losses.laplacian.neighbours`, when the caller already has them). A scalar in
+    metres; zero with fewer than two points."""
     check_points("flow_smoothness", "pc1", pc1)
     check_points("flow_smoothness", "departure", departure, pc1.shape[0], pc1.shape[1])
-    idx = neighbours(pc1, k, backend)  # (B, n, k')
+    idx = neighbours(pc1, k, backend) if neighbours1 is None else neighbours1  # (B, n, k')
     if idx.shape[-1] == 0:
         return departure.sum() * 0.0
     diff = group(departure, idx) - departure.unsqueeze(2)  # (B, n, k', 3)

@@ -50,6 +50,7 @@ def laplacian(
     backend: KnnBackend = "auto",
     plane: float = 0.0,
     normals2: Tensor | None = None,
+    neighbours1: Tensor | None = None,
 ) -> Tensor:
     """``L_LR = mean_{p̄ ∈ P̄} ‖γ(p̄) − γ̄(p̄)‖²`` (eq. 16), m².
 
@@ -70,13 +71,14 @@ def laplacian(
     (:func:`training.pointops.surface_normals`). On a surface the Laplacian of a sample lies mostly along
     the surface and depends on where the samples happen to fall, so two samples of the same surface differ
     there even at the true flow; its normal component is the surface's curvature, which they share.
-    ``normals2`` (B, m, 3): pc2's normals when the caller already has them (computed here otherwise).
+    ``normals2`` (B, m, 3): pc2's normals when the caller already has them (computed here otherwise);
+    ``neighbours1`` (B, n, k'): :func:`neighbours` of ``pc1`` with this ``k``, likewise.
     """
     check_points("laplacian", "p_warped", p_warped)
     B, n, _ = p_warped.shape
     check_points("laplacian", "pc1", pc1, B, n)
     check_points("laplacian", "pc2", pc2, B)
-    gamma_warped = laplacian_coordinates(p_warped, neighbours(pc1, k, backend))
+    gamma_warped = laplacian_coordinates(p_warped, neighbours(pc1, k, backend) if neighbours1 is None else neighbours1)
     gamma_pc2 = laplacian_coordinates(pc2, neighbours(pc2, k, backend))
     gamma_interp = knn_interpolate(p_warped, pc2, gamma_pc2, k=k_interp, backend=backend)
     diff = gamma_warped - gamma_interp

@@ -30,7 +30,7 @@ from training.losses.dynamic_static import dynamic_static
 from training.losses.ego_motion import ego_motion_term
 from training.losses.flow_smooth import flow_smoothness
 from training.losses.gate_pull import gate_pull
-from training.losses.laplacian import laplacian
+from training.losses.laplacian import laplacian, neighbours
 from training.losses.static_anchor import static_anchor, verified_static
 from training.pointops import surface_normals
 from training.config import LossWeights  # noqa: F401  (re-exported: the loss config)
@@ -93,13 +93,15 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
         out["ds"] = dynamic_static(level.flow_o, level.static_flow, level.flow_d)
     plane = (w.use_chamfer and w.chamfer_plane > 0) or (w.use_laplacian and w.laplacian_plane > 0)
     normals2 = surface_normals(level.pc2, backend=w.knn_backend) if plane else None  # one estimate, both terms
+    # pc1's neighbourhoods: one search for the Laplacian and the smoothness term
+    nbr1 = neighbours(level.pc1, w.laplacian_k, w.knn_backend) if w.use_laplacian or w.flow_smooth > 0 else None
     if w.use_chamfer:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
                                  w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane,
                                  normals2)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend,
-                                     w.laplacian_plane, normals2)
+                                     w.laplacian_plane, normals2, nbr1)
     if w.static_anchor > 0:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
                                    w.anchor_tol_rel, w.depth_edge_tolerance)
@@ -113,7 +115,8 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
             raise ConfigError("loss.gate_pull needs a net that reports its gate gaps (model.ego_head true)")
         out["pull"] = gate_pull(level.gap_o) + gate_pull(level.gap_d)
     if w.flow_smooth > 0:
-        out["smooth"] = flow_smoothness(level.pc1, level.flow_o - level.static_flow, w.laplacian_k, w.knn_backend)
+        out["smooth"] = flow_smoothness(level.pc1, level.flow_o - level.static_flow, w.laplacian_k, w.knn_backend,
+                                        nbr1)
     return out
 
 
