@@ -69,8 +69,8 @@ def rigid_fit(pc1: np.ndarray, flow: np.ndarray, sigma: float = 0.25, iterations
     def t(x):
         return torch.tensor(np.asarray(x, np.float64))[None]
 
-    _, R, tr, _ = rigid_plus_residual(t(pc1), t(flow), sigma, iterations, mad_factor)
-    return R[0].numpy(), tr[0].numpy()
+    split = rigid_plus_residual(t(pc1), t(flow), sigma, iterations, mad_factor)
+    return split.R[0].numpy(), split.t[0].numpy()
 
 
 class ViewPruned(MethodWrapper):

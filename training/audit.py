@@ -38,6 +38,8 @@ from torch import Tensor
 from training.data import FlowBatch, PairDataset, collate, pairs_with_gt_flow, split_pairs
 from training.config import LossWeights
 from training.losses.total import LevelInputs, multi_level_loss
+from training.model.ego_motion import gate_value
+from training.model.halflownet_config import HALFlowConfig
 
 
 @dataclass
@@ -97,6 +99,13 @@ def _first_n_levels(n: int, level_points: tuple[int, ...]) -> list[Tensor]:
     return [torch.arange(min(k, n)) for k in level_points]
 
 
+def _gate(flow: Tensor, static_flow: Tensor) -> Tensor:
+    """The gate (B, n) an ego head whose rigid motion is stage one's would give ``flow``, at the head's
+    default scale σ (for ``loss.plane_where_held``; :func:`training.model.ego_motion.gate_value`)."""
+    sigma = HALFlowConfig().ego_sigma
+    return gate_value(((flow - static_flow) ** 2).sum(-1).detach(), sigma * sigma)
+
+
 def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], idx1: list[Tensor],
                  idx2: list[Tensor], weights: LossWeights) -> list[dict[str, float]]:
     """Per level (finest first): every enabled unweighted term and ``weighted`` (α_k Σ β L), floats, as
@@ -104,7 +113,8 @@ def level_losses(batch: FlowBatch, flow_o: list[Tensor], flow_d: list[Tensor], i
     from training.two_pass import gather
 
     levels = [LevelInputs(pc1=gather(batch.pc1, i1), pc2=gather(batch.pc2, i2), flow_o=fo, flow_d=fd,
-                          static_flow=gather(batch.static_flow, i1), K=batch.K, depth2=batch.depth2)
+                          static_flow=gather(batch.static_flow, i1), K=batch.K, depth2=batch.depth2,
+                          gate_o=_gate(fo, gather(batch.static_flow, i1)))
               for fo, fd, i1, i2 in zip(flow_o, flow_d, idx1, idx2)]
     _, logged = multi_level_loss(levels, weights)
     return [{key.split("/", 1)[1]: v for key, v in logged.items() if key.startswith(f"l{k}/")}
@@ -203,7 +213,7 @@ def truth_pulls(cfg: AuditConfig, far_m: float = 0.5, static_m: float = 0.05) ->
         groups = {"near": static & (d2[0, :, 0] <= far_m ** 2), "far": static & (d2[0, :, 0] > far_m ** 2)}
         flow = gt.clone().requires_grad_(True)
         terms = level_terms(LevelInputs(pc1=pc1, pc2=pc2, flow_o=flow, flow_d=gt - sf, static_flow=sf, K=batch.K,
-                                        depth2=batch.depth2), cfg.weights)
+                                        depth2=batch.depth2, gate_o=_gate(gt, sf)), cfg.weights)
         for term in (t for t in PULL_TERMS if t in terms):
             grad, = torch.autograd.grad(beta[term] * pc1.shape[1] * terms[term], flow, retain_graph=True)
             length = grad[0].norm(dim=-1)
@@ -241,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--chamfer-plane", type=float, default=0.0, help="LossWeights.chamfer_plane (0 = the paper)")
     p.add_argument("--laplacian-plane", type=float, default=0.0, help="LossWeights.laplacian_plane (0 = the paper)")
     p.add_argument("--flow-smooth", type=float, default=0.0, help="LossWeights.flow_smooth (0 = the paper)")
+    p.add_argument("--plane-where-held", action="store_true",
+                   help="LossWeights.plane_where_held (the gate: what a head fitting stage one's motion would give)")
     p.add_argument("--pulls", action="store_true",
                    help="audit each term's pull on the true flow of static points instead (truth_pulls)")
     args = p.parse_args(argv)
@@ -248,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     def run(_):
         beta = {"beta": tuple(float(b) for b in args.beta.split(","))} if args.beta else {}
         weights = LossWeights(chamfer_truncate=args.chamfer_truncate, chamfer_plane=args.chamfer_plane,
-                              laplacian_plane=args.laplacian_plane, flow_smooth=args.flow_smooth, **beta)
+                              laplacian_plane=args.laplacian_plane, flow_smooth=args.flow_smooth,
+                              plane_where_held=args.plane_where_held, **beta)
         cfg = AuditConfig(cache=args.cache, checkpoint=args.checkpoint, subset=args.subset,
                           pairs_max=args.pairs_max, n_points=args.n_points, weights=weights)
         if args.pulls:

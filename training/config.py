@@ -195,6 +195,12 @@ class LossWeights:
         It reads frame t and stage one's pose alone, so unlike the Chamfer, Laplacian and depth terms its
         least value does not depend on where frame (t+1)'s samples fell (docs/learned-flow.md, fifteenth
         round).
+    plane_where_held: the plane forms (``chamfer_plane``, ``laplacian_plane``) count only where the net's ego
+        head holds a point at its fitted rigid motion: each frame-t point's λ is scaled by ``1 − m``, ``m``
+        the head's gate (0 held … 1 own flow), and a frame-(t+1) point's Chamfer pair by that of its nearest
+        warped point. Where the gate lets a mover's own flow through, the pair counts point to point, which
+        holds the mover's flow along its own surface (needs ``model.ego_head``; a departure;
+        docs/learned-flow.md, sixteenth round). False = λ everywhere.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -222,6 +228,7 @@ class LossWeights:
     chamfer_plane: float = 0.0
     laplacian_plane: float = 0.0
     flow_smooth: float = 0.0
+    plane_where_held: bool = False
 
     def __post_init__(self) -> None:
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]

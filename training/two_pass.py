@@ -61,6 +61,7 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_tar
     rigid = out_o.rigid_flows if len(out_o.rigid_flows) == len(out_o.flows) else [None] * len(out_o.flows)
     gap_o, gap_d = ([o.gate_gaps[l] if len(o.gate_gaps) == len(o.flows) else None for l in range(len(o.flows))]
                     for o in (out_o, out_d))
+    gates = out_o.gates if len(out_o.gates) == len(out_o.flows) else [None] * len(out_o.flows)
     for l, (f_o, f_d) in enumerate(zip(out_o.flows, out_d.flows)):
         idx1, idx2 = out_o.indices[l], out_o.indices2[0 if pc2_target == "finest" else l]
         pc2 = targets[l] if pc2_target == "independent" else gather(batch.pc2, idx2)
@@ -71,7 +72,7 @@ def level_inputs(batch: FlowBatch, out_o: FlowOutput, out_d: FlowOutput, pc2_tar
                                   view2=gather(batch.view2, idx2) if view_mask and pc2_target != "independent"
                                   else None,
                                   rigid_o=None if rigid[l] is None else rigid[l].float(),
-                                  gap_o=gap_o[l], gap_d=gap_d[l]))
+                                  gap_o=gap_o[l], gap_d=gap_d[l], gate_o=gates[l]))
     return levels
 
 

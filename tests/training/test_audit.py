@@ -17,18 +17,20 @@ def synth_cache(synth_root, tmp_path_factory):
     return str(run_preprocess(cfg).cache_root)
 
 
-@pytest.mark.parametrize("truncate, plane", [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0)])
-def test_truth_has_the_lowest_weighted_loss_at_every_level(synth_cache, truncate, plane):
+@pytest.mark.parametrize("truncate, plane, held", [(0.0, 0.0, False), (2.0, 0.0, False), (2.0, 1.0, False),
+                                                   (2.0, 1.0, True)])
+def test_truth_has_the_lowest_weighted_loss_at_every_level(synth_cache, truncate, plane, held):
     """The paper's loss, with the Chamfer term truncated at 2 m (``loss.chamfer_truncate``), and truncated
     in the point-to-plane forms of the Chamfer and Laplacian terms (``loss.chamfer_plane``,
-    ``loss.laplacian_plane``)."""
+    ``loss.laplacian_plane``), everywhere or only where an ego head would hold the point
+    (``loss.plane_where_held``)."""
     from training.audit import AuditConfig, audit
     from training.config import LossWeights
 
     cfg = AuditConfig(cache=synth_cache, n_points=2048, level_points=level_points_for(2048)[:4], pairs_max=8,
                       noise_m=(0.05, 0.2), rigid_deg=1.0, rigid_m=0.2,
                       weights=LossWeights(chamfer_truncate=truncate, chamfer_plane=plane,
-                                              laplacian_plane=plane))
+                                              laplacian_plane=plane, plane_where_held=held))
     rows = audit(cfg)
     by = {(r["candidate"], r["level"]): r for r in rows}
     assert {c for c, _ in by} == {"gt", "gt+noise0.05", "gt+noise0.2", "gt∘rigid", "static"}

@@ -32,7 +32,7 @@ def test_weighted_fit_is_exact_on_a_rigid_motion_and_ignores_zero_weights():
 
 def test_head_removes_static_noise_and_keeps_movers():
     p, gt, noisy, _ = _scene()
-    out, R, t, w = rigid_plus_residual(p, noisy, sigma=0.25, iterations=4)
+    out, R, t, w, _ = rigid_plus_residual(p, noisy, sigma=0.25, iterations=4)
     err_in = (noisy - gt).norm(dim=-1)
     err_out = (out - gt).norm(dim=-1)
     # static points: the rigid fit over ~1000 points averages the 0.1 m/axis noise away (only the gate leaks)
@@ -73,8 +73,8 @@ def test_robust_scale_follows_the_noise_of_the_flow():
     """With 0.3 m/axis noise a fixed 0.1 m scale calls most static points moving (they keep their noise);
     the MAD scale (3 × 1.4826 × median residual) recognises them and hands them the rigid flow."""
     p, gt, noisy, _ = _scene(noise=0.3)
-    fixed, *_, w_fixed = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=0.0)
-    robust, *_, w_robust = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=3.0)
+    fixed, *_, w_fixed, _ = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=0.0)
+    robust, *_, w_robust, _ = rigid_plus_residual(p, noisy, sigma=0.1, iterations=4, mad_factor=3.0)
     static = slice(60, None)
     assert w_fixed[:, static].mean() < 0.3 < 0.7 < w_robust[:, static].mean()
     err_fixed = (fixed - gt).norm(dim=-1)[:, static].mean()
@@ -134,9 +134,9 @@ def test_open_gradient_keeps_the_output_and_reaches_the_own_flow_of_a_gated_poin
     the output's gradient in full on its own flow, where the gate alone passes almost none of it."""
     p, gt, _, _ = _scene(noise=0.0, movers=0)
     flow = gt.clone().requires_grad_(True)
-    gated, _, _, _ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4)
+    gated, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4)
     (g_gated,) = torch.autograd.grad(gated[0, 0, 0], flow)
-    opened, _, _, _ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, open_gradient=True)
+    opened, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, open_gradient=True)
     (g_open,) = torch.autograd.grad(opened[0, 0, 0], flow)
     assert torch.equal(gated, opened)
     # gated: the point's own x flow enters only through the rigid fit over 600 points (about 1/600 of it)

@@ -44,7 +44,7 @@ def test_descending_the_pull_returns_gated_strays_to_the_camera_motion_and_leave
         gate_pull(_gap(p, flow)).backward()
         opt.step()
     with torch.no_grad():
-        _, R, t, _ = rigid_plus_residual(p, flow, sigma=0.25, iterations=4)
+        _, R, t, *_ = rigid_plus_residual(p, flow, sigma=0.25, iterations=4)
         rigid = p @ R.transpose(1, 2) + t[:, None] - p
         stray_gap = (flow[:, 60:120] - rigid[:, 60:120]).norm(dim=-1)
         mover_shift = (flow[:, :60] - start[:, :60]).norm(dim=-1)

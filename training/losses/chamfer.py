@@ -31,10 +31,11 @@ def nearest_offset(query: Tensor, ref: Tensor, backend: KnnBackend = "auto") -> 
     return group(ref, idx)[:, :, 0] - query, idx[..., 0]
 
 
-def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float) -> tuple[Tensor, Tensor]:
-    """Blended squared distance ``(1 − λ) ‖o‖² + λ (o · n)²`` of offsets (B, M, 3) and the plain one."""
+def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float | Tensor) -> tuple[Tensor, Tensor]:
+    """Blended squared distance ``(1 − λ) ‖o‖² + λ (o · n)²`` of offsets (B, M, 3) and the plain one; ``plane``
+    λ is one number or one per offset (B, M)."""
     full = (offset ** 2).sum(-1)
-    if normal is None or plane <= 0:
+    if normal is None or (not isinstance(plane, Tensor) and plane <= 0):
         return full, full
     along = (offset * normal).sum(-1) ** 2
     return (1 - plane) * full + plane * along, full
@@ -42,7 +43,7 @@ def _pair_sq_dist(offset: Tensor, normal: Tensor | None, plane: float) -> tuple[
 
 def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: Tensor | None = None,
             mask2: Tensor | None = None, truncate: float = math.inf, plane: float = 0.0,
-            normals2: Tensor | None = None) -> Tensor:
+            normals2: Tensor | None = None, plane_weight1: Tensor | None = None) -> Tensor:
     """``L_Cha = mean_{p̄ ∈ P̄} min_{q ∈ PC2} ‖p̄ − q‖² + mean_{q ∈ PC2} min_{p̄ ∈ P̄} ‖p̄ − q‖²`` (eq. 13).
 
     ``p_warped`` (B, N, 3) = pc1 + f_o and ``pc2`` (B, M, 3), both camera-2 frame, metres; result in m².
@@ -58,7 +59,10 @@ def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: 
     lands between two samples of a surface onto one of them — a pull along the surface that the true flow
     does not have and that a net which sees pc2 can learn. The normal component keeps the pull onto the
     surface and drops the one along it. The truncation still reads the plain distance. ``normals2`` (B, M, 3):
-    pc2's normals when the caller already has them (computed here otherwise).
+    pc2's normals when the caller already has them (computed here otherwise). ``plane_weight1`` (B, N) in
+    [0, 1], no gradient: each warped point's pair counts with ``λ w_i`` instead of λ, and each pc2 point's
+    pair with the ``w`` of its nearest warped point (``loss.plane_where_held``: ``w = 1 − m``, the ego head's
+    gate).
     """
     check_points("chamfer", "p_warped", p_warped)
     check_points("chamfer", "pc2", pc2, p_warped.shape[0])
@@ -68,9 +72,13 @@ def chamfer(p_warped: Tensor, pc2: Tensor, backend: KnnBackend = "auto", mask1: 
     if plane > 0:
         normals = surface_normals(pc2, backend=backend) if normals2 is None else normals2
     o12, i12 = nearest_offset(p_warped, pc2, backend)
-    o21, _ = nearest_offset(pc2, p_warped, backend)
     n12 = None if normals is None else group(normals, i12[..., None])[:, :, 0]
-    (d12, f12), (d21, f21) = _pair_sq_dist(o12, n12, plane), _pair_sq_dist(o21, normals, plane)
+    o21, i21 = nearest_offset(pc2, p_warped, backend)
+    lam12: float | Tensor = plane
+    lam21: float | Tensor = plane
+    if plane_weight1 is not None and plane > 0:
+        lam12, lam21 = plane * plane_weight1, plane * plane_weight1.gather(1, i21)
+    (d12, f12), (d21, f21) = _pair_sq_dist(o12, n12, lam12), _pair_sq_dist(o21, normals, lam21)
     if math.isfinite(truncate):
         cap = truncate * truncate
         d12, d21 = torch.where(f12 > cap, cap, d12), torch.where(f21 > cap, cap, d21)

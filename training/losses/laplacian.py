@@ -51,6 +51,7 @@ def laplacian(
     plane: float = 0.0,
     normals2: Tensor | None = None,
     neighbours1: Tensor | None = None,
+    plane_weight: Tensor | None = None,
 ) -> Tensor:
     """``L_LR = mean_{p̄ ∈ P̄} ‖γ(p̄) − γ̄(p̄)‖²`` (eq. 16), m².
 
@@ -72,7 +73,9 @@ def laplacian(
     the surface and depends on where the samples happen to fall, so two samples of the same surface differ
     there even at the true flow; its normal component is the surface's curvature, which they share.
     ``normals2`` (B, m, 3): pc2's normals when the caller already has them (computed here otherwise);
-    ``neighbours1`` (B, n, k'): :func:`neighbours` of ``pc1`` with this ``k``, likewise.
+    ``neighbours1`` (B, n, k'): :func:`neighbours` of ``pc1`` with this ``k``, likewise. ``plane_weight``
+    (B, n) in [0, 1], no gradient: each warped point counts with ``λ w_i`` instead of λ
+    (``loss.plane_where_held``).
     """
     check_points("laplacian", "p_warped", p_warped)
     B, n, _ = p_warped.shape
@@ -88,4 +91,5 @@ def laplacian(
     _, near = knn(p_warped, pc2, 1, backend)
     normals = surface_normals(pc2, backend=backend) if normals2 is None else normals2
     normal = group(normals, near)[:, :, 0]
-    return ((1 - plane) * full + plane * (diff * normal).sum(-1) ** 2).mean()
+    lam = plane if plane_weight is None else plane * plane_weight
+    return ((1 - lam) * full + lam * (diff * normal).sum(-1) ** 2).mean()

@@ -51,6 +51,8 @@ class LevelInputs:
         (:attr:`~training.model.contract.FlowOutput.rigid_flows`; the ego-motion term needs it).
     gap_o / gap_d (B, n) or None: the ego head's gate gaps ``‖f − sg(f')‖²`` (m²) of the overall and the
         dynamic pass (:attr:`~training.model.contract.FlowOutput.gate_gaps`; the gate pull needs them).
+    gate_o (B, n) or None: the ego head's gate ``m`` in [0, 1] in the overall pass
+        (:attr:`~training.model.contract.FlowOutput.gates`; ``loss.plane_where_held`` needs it).
     """
 
     pc1: Tensor
@@ -65,6 +67,7 @@ class LevelInputs:
     rigid_o: Tensor | None = None
     gap_o: Tensor | None = None
     gap_d: Tensor | None = None
+    gate_o: Tensor | None = None
 
 
 def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
@@ -95,13 +98,18 @@ def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
     normals2 = surface_normals(level.pc2, backend=w.knn_backend) if plane else None  # one estimate, both terms
     # pc1's neighbourhoods: one search for the Laplacian and the smoothness term
     nbr1 = neighbours(level.pc1, w.laplacian_k, w.knn_backend) if w.use_laplacian or w.flow_smooth > 0 else None
+    held = None  # the plane forms' per-point share: 1 − the ego head's gate (held at the rigid flow: 1)
+    if w.plane_where_held and plane:
+        if level.gate_o is None:
+            raise ConfigError("loss.plane_where_held needs a net that reports its gate (model.ego_head true)")
+        held = 1 - level.gate_o.detach().float()
     if w.use_chamfer:
         out["chamfer"] = chamfer(warped, level.pc2, w.knn_backend, level.view1, level.view2,
                                  w.chamfer_truncate if w.chamfer_truncate > 0 else math.inf, w.chamfer_plane,
-                                 normals2)
+                                 normals2, held)
     if w.use_laplacian:
         out["laplacian"] = laplacian(warped, level.pc1, level.pc2, w.laplacian_k, w.interp_k, w.knn_backend,
-                                     w.laplacian_plane, normals2, nbr1)
+                                     w.laplacian_plane, normals2, nbr1, held)
     if w.static_anchor > 0:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
                                    w.anchor_tol_rel, w.depth_edge_tolerance)

@@ -69,6 +69,9 @@ class FlowOutput:
     gate_gaps: (B, n_l) per level, ``‖f − sg(f')‖²`` (m²) between the flow that entered the ego head and
         its output, summed over the level's head calls and differentiable in the former (the gate pull,
         :mod:`training.losses.gate_pull`); empty for nets without the head.
+    gates: (B, n_l) per level, no gradient, the ego head's gate ``m`` in [0, 1] at the call that made the
+        level's output (0: the point is held at the fitted rigid flow; 1: it keeps its own flow; the
+        plane forms' ``loss.plane_where_held``); empty for nets without the head.
     """
 
     flows: list[Tensor]
@@ -79,6 +82,7 @@ class FlowOutput:
     sampling: Any = None
     rigid_flows: list[Tensor] = field(default_factory=list)
     gate_gaps: list[Tensor] = field(default_factory=list)
+    gates: list[Tensor] = field(default_factory=list)
 
 
 @runtime_checkable

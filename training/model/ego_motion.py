@@ -24,6 +24,8 @@ vehicle: a turn about y and a translation in x–z (:func:`weighted_planar_fit`)
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
@@ -77,15 +79,34 @@ def weighted_planar_fit(src: Tensor, dst: Tensor, weights: Tensor) -> tuple[Tens
     return R.to(src.dtype), t.to(src.dtype)
 
 
+class EgoSplit(NamedTuple):
+    """What :func:`rigid_plus_residual` returns.
+
+    flow (B, N, 3): the head's output flow, metres. R (B, 3, 3), t (B, 3): the fitted rigid motion,
+    camera 1 → camera 2. static_weight (B, N) in (0, 1]: the fit's final Cauchy weights (≈1: the point
+    moves with the camera; ≈0: it moves on its own). gate (B, N) in [0, 1], no gradient: the output's gate
+    ``m`` (0: the point is held at the rigid flow; 1: it keeps its own flow).
+    """
+
+    flow: Tensor
+    R: Tensor
+    t: Tensor
+    static_weight: Tensor
+    gate: Tensor
+
+
+def gate_value(r2: Tensor, s2: Tensor | float) -> Tensor:
+    """The gate ``m = r⁴ / (σ⁴ + r⁴)`` from squared residuals ``r2`` (m²) and the squared scale ``s2`` (m²):
+    0 where a flow agrees with the rigid motion, 1 where it departs well beyond σ."""
+    return r2 * r2 / (s2 * s2 + r2 * r2)
+
+
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
-                        gate_spacing: float = 0.0, open_k: int = 0) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual.
-
-    Returns ``(flow_out, R, t, static_weight)``: the head's flow (B, N, 3, metres), the fitted rotation
-    (B, 3, 3) and translation (B, 3) (camera-1 → camera-2), and the final Cauchy weights (B, N) in (0, 1]
-    (≈1: the point moves with the camera; ≈0: it moves on its own). ``sigma`` (metres) is the residual
+                        gate_spacing: float = 0.0, open_k: int = 0) -> EgoSplit:
+    """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual
+    (an :class:`EgoSplit`). ``sigma`` (metres) is the residual
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
     ``max(sigma, mad_factor · 1.4826 · median residual)`` per cloud, re-estimated every round (the
     median absolute residual times 1.4826 estimates a Gaussian's σ robustly); ``iterations`` the
@@ -128,7 +149,7 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
         if gate_k > 1:
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
-        gate = (r2 * r2 / (s2 * s2 + r2 * r2))[..., None]
+        gate = gate_value(r2, s2)[..., None]
     out = rigid + gate * (flow - rigid)
     if open_gradient:
         through = flow
@@ -136,4 +157,4 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             _, near = knn(points, points, min(open_k, points.shape[1]))
             through = group(flow, near).mean(dim=2)
         out = out + (1 - gate) * (through - through.detach())
-    return out, R, t, weights
+    return EgoSplit(out, R, t, weights, gate[..., 0])

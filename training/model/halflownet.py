@@ -118,21 +118,23 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor, frame2: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    def _ego(self, xyz: Tensor, flow: Tensor,
+             frame2: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
-        motion's flow ``T̂ p − p`` and the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
-        and the output, differentiable in the former (:mod:`training.losses.gate_pull`); None without the
-        head. ``frame2``: the level's frame-2 points (for ``ego_gate_spacing``)."""
+        motion's flow ``T̂ p − p``, the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
+        and the output, differentiable in the former (:mod:`training.losses.gate_pull`), and the gate
+        ``m`` (B, n) in [0, 1] (0: held at the rigid flow); None without the head. ``frame2``: the level's
+        frame-2 points (for ``ego_gate_spacing``)."""
         cfg = self.config
         if not cfg.ego_head:
-            return flow, None, None
+            return flow, None, None, None
         x = xyz.float()
-        out, R, t, _ = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
+        out, R, t, _, gate = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k,
                                            frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         gap = ((flow.float() - out.detach()) ** 2).sum(-1)
-        return out.to(flow.dtype), rigid.to(flow.dtype), gap
+        return out.to(flow.dtype), rigid.to(flow.dtype), gap, gate
 
     def _down(
         self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
@@ -272,8 +274,8 @@ class HALFlowNet(nn.Module):
             coarse = coarse + self.coarse_translation(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])[:, None]
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow, rigid, gap = self._ego(xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
-        flows, rigids, gaps = [flow], [rigid], [gap]
+        flow, rigid, gap, gate = self._ego(xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
+        flows, rigids, gaps, gates = [flow], [rigid], [gap], [gate]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
         for lvl, upconv, cv, refiner, head in ((2, self.up2, self.cost2, self.refine2, self.head2),
@@ -283,10 +285,11 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid, gap = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
+            flow, rigid, gap, gate = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
             flows.insert(0, flow)
             rigids.insert(0, rigid)
             gaps.insert(0, gap)
+            gates.insert(0, gate)
 
         # L0: propagate L1's refinement features, residual on the interpolated L1 flow.
         hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
@@ -294,13 +297,14 @@ class HALFlowNet(nn.Module):
         flow = coarse + self.head0(hidden)
         gap0 = None
         if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
-            flow, _, gap0 = self._ego(p1.xyz[0], flow, p2.xyz[0])
+            flow, _, gap0, _ = self._ego(p1.xyz[0], flow, p2.xyz[0])
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
-        flow, rigid, gap = self._ego(p1.xyz[0], flow, p2.xyz[0])
+        flow, rigid, gap, gate = self._ego(p1.xyz[0], flow, p2.xyz[0])
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)
+        gates.insert(0, gate)  # the level's last head call: the one that made its output
 
         if shift is not None:
             flows = [f + shift[:, None] for f in flows]
@@ -315,6 +319,7 @@ class HALFlowNet(nn.Module):
             sampling=Sampling(pc1=p1.samples, pc2=p2.samples),
             rigid_flows=[] if rigids[0] is None else rigids,
             gate_gaps=[] if gaps[0] is None else gaps,
+            gates=[] if gates[0] is None else gates,
         )
 
 
