@@ -95,7 +95,7 @@ def test_bad_gaps_are_refused():
         gate_pull(torch.zeros(2, 10, 3))
 
 
-def test_the_net_reports_its_gate_gaps_per_level_and_they_reach_the_heads():
+def test_the_net_reports_its_gate_gaps_and_gates_per_level_and_the_gaps_reach_the_heads():
     from training.config import level_points_for
     from training.model.halflownet import HALFlowConfig, HALFlowNet
 
@@ -104,11 +104,15 @@ def test_the_net_reports_its_gate_gaps_per_level_and_they_reach_the_heads():
     pc1 = torch.randn(2, 512, 3) * 4 + torch.tensor([0.0, 0.0, 10.0])
     pc2 = pc1 + torch.tensor([0.0, 0.0, -0.8])
     small = dict(n_points=512, level_points=lp, width_scale=0.25)
-    assert HALFlowNet(HALFlowConfig(**small))(pc1, pc2).gate_gaps == []
+    plain = HALFlowNet(HALFlowConfig(**small))(pc1, pc2)
+    assert plain.gate_gaps == [] and plain.gates == []
     net = HALFlowNet(HALFlowConfig(**small, ego_head=True, ego_open_gradient=True, l0_cost_volume=True))
     out = net(pc1, pc2)
     assert [tuple(g.shape) for g in out.gate_gaps] == [(2, n) for n in lp[:4]]
     assert all(bool((g >= 0).all()) and g.sum() > 0 for g in out.gate_gaps)  # random heads: own flows stray
+    # the gate itself (loss.plane_where_held), per level, without gradient
+    assert [tuple(g.shape) for g in out.gates] == [(2, n) for n in lp[:4]]
+    assert all(bool((g >= 0).all() and (g <= 1).all()) and not g.requires_grad for g in out.gates)
     sum(gate_pull(g) for g in out.gate_gaps).backward()
     heads = [net.head0, net.head1, net.head2, net.head3, net.head0_refine]
     assert all(q.grad is not None and q.grad.abs().sum() > 0 for h in heads for q in h.parameters())

@@ -84,21 +84,6 @@ def test_the_head_reports_the_gate_it_applied():
     assert bool((split.gate[0, :30] > 0.99).all()) and bool((split.gate[0, 30:] < 0.01).all())
 
 
-def test_the_net_reports_a_gate_per_level():
-    from training.config import level_points_for
-    from training.model.halflownet import HALFlowConfig, HALFlowNet
-
-    torch.manual_seed(0)
-    lp = level_points_for(512)
-    pc1 = torch.randn(2, 512, 3) * 4 + torch.tensor([0.0, 0.0, 10.0])
-    pc2 = pc1 + torch.tensor([0.0, 0.0, -0.8])
-    small = dict(n_points=512, level_points=lp, width_scale=0.25)
-    assert HALFlowNet(HALFlowConfig(**small))(pc1, pc2).gates == []
-    out = HALFlowNet(HALFlowConfig(**small, ego_head=True, l0_cost_volume=True))(pc1, pc2)
-    assert [tuple(g.shape) for g in out.gates] == [(2, n) for n in lp[:4]]
-    assert all(bool((g >= 0).all() and (g <= 1).all()) for g in out.gates)
-
-
 def _level(gate: torch.Tensor | None) -> LevelInputs:
     pc2 = _wall()
     pc1 = pc2 - torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)
