@@ -12,7 +12,9 @@ Example (the demo's settings, 4x its steps)::
     python -m benchmarks.learning_curve --cache cache/demo/cache/synthetic/<hash> \\
         --split demo=cache/demo/world/sceneflow/flownet3d --out runs/curve --steps 500,1000,2000
 
-Extra training options go after ``--set`` as dotted ``key=value`` pairs (``--set model.ego_head=false``).
+Extra training options go after ``--set`` as dotted ``key=value`` pairs (``--set model.ego_head=false``),
+applied to the paper's form, or with ``--start demo`` to the demo preset (``--start demo --set
+loss.plane_where_held=true`` is one candidate against the preset).
 """
 
 from __future__ import annotations
@@ -42,14 +44,21 @@ def _coerce(text: str):
 
 
 def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scale: float = 0.5, seed: int = 0,
-                      overrides: dict | None = None):
-    """The paper's form at the demo's sizes (no ego head, no augmentation) plus ``overrides``: the curves
-    start from the paper and switch departures on one by one."""
+                      overrides: dict | None = None, start: str = "paper"):
+    """The run's :class:`~training.config.TrainConfig` at the demo's sizes plus ``overrides``. ``start="paper"``:
+    the paper's form (no ego head, no augmentation), so a curve switches departures on one by one;
+    ``start="demo"``: the demo preset as ``make demo`` trains it (training/presets.py), so a candidate
+    is one ``--set`` on top of it. Both load in the training process without a progress bar."""
     from training.presets import demo_train_config as preset
 
+    quiet = {"data.workers": 0, "progress": False}  # neither changes the result (the trainer's resume checks)
+    if start == "demo":
+        return preset(cache, run_dir, 1, n_points, width_scale, seed, {**quiet, **(overrides or {})})
+    if start != "paper":
+        raise ValueError(f"start must be 'paper' or 'demo', not {start!r}")
     paper = {"model.ego_head": False, "model.eval_norm_stats": "running", "data.lidar_rings": 0.0,
              "data.density_drop": 0.0, "data.ground_jitter_m": 0.0, "data.ego_speed_scale": (1.0, 1.0),
-             "data.workers": 0, "progress": False, "model.ego_open_gradient": False, "model.zero_flow_heads": False,
+             **quiet, "model.ego_open_gradient": False, "model.zero_flow_heads": False,
              "loss.gate_pull": 0.0, "loss.chamfer_truncate": 0.0, "loss.chamfer_plane": 0.0,
              "loss.laplacian_plane": 0.0, "loss.flow_smooth": 0.0}
     return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
@@ -86,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
                         "(model.eval_norm_stats), "
                         "'prune' (two-pass view pruning, evaluation/view_prune.py), 'polish' (rigid polish, "
                         "evaluation/rigid_polish.py; after 'prune' when both are given)")
+    p.add_argument("--start", choices=("paper", "demo"), default="paper",
+                   help="settings --set applies to: the paper's form (departures off) or the demo preset")
     p.add_argument("--set", nargs="*", default=[], type=key_value, help="dotted TrainConfig overrides key=value")
     args = p.parse_args(argv)
 
@@ -114,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     cfg = None
     for m in milestones:
-        cfg = demo_train_config(args.cache, str(run_dir), args.n_points, args.width_scale, args.seed, overrides)
+        cfg = demo_train_config(args.cache, str(run_dir), args.n_points, args.width_scale, args.seed, overrides,
+                                args.start)
         cfg.steps, cfg.val_every, cfg.ckpt_every, cfg.log_every = m, 100, 100, 50
         snap = out / f"step_{m:06d}.pt"
         if not snap.exists():
