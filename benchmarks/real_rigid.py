@@ -1,0 +1,145 @@
+"""A rigid scene-flow test split built from one real KITTI LiDAR scan, not from the synthetic generator.
+
+The learned flow is trained on the synthetic world; its own test splits come from the same generator, so
+they cannot show whether the net has learned that world's geometry rather than scene flow. This tool
+writes a FlowNet3D ``kitti_rm_ground`` split (``*.npz``: pos1, pos2, gt; LiDAR axes, see
+``evaluation/readers/flownet3d.py``) from a real Velodyne scan and its calibration: the scan is moved into
+the rectified camera-0 frame (x right, y down, z forward, metres) with ``R0_rect · Tr_velo_to_cam``, the
+ground (camera y ≥ ``ground_y``, the road ~1.65 m below the camera) and points beyond ``max_depth`` are
+dropped as FlowNet3D's split does, and each pair then
+
+* splits the points at random into two disjoint halves: frame t keeps one, frame t+1 the other, so no
+  point of frame t has an exact copy in frame t+1 (as with two real scans);
+* moves the camera forward by ``forward_m`` (uniform) along an arc that turns it by ``yaw_deg`` (uniform
+  ±) and pitches it by ``pitch_deg`` (±), the range of KITTI's 10 Hz odometry;
+* expresses frame t+1's half in the moved camera's frame; the true flow of frame t's points is the
+  camera's motion alone (the paper's eq. 11, ``sf = (R p + t) − p``), every point static.
+
+So it checks the camera-motion part of the flow (most of KITTI's points) on real street geometry: the
+range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan. It has no movers; their error
+is measured on the synthetic splits only. Used in docs/learned-flow.md (sixteenth round)::
+
+    python -m benchmarks.real_rigid --scan ../shared/data/kitti_object_000008/000008.bin \\
+        --calib ../shared/data/kitti_object_000008/calib_000008.txt --out w/real_rigid
+    monoflow-evaluate run --split w/real_rigid --checkpoint runs/curve/step_000500.pt --protocol fps \\
+        --baselines icp-p2p,nsfp --out eval_real_rigid
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from core.axes import FORMAT_AXES
+from core.errors import InputError
+from core.geometry import euler_to_matrix, se3_inverse, static_flow, transform_points
+
+
+@dataclass
+class RealRigidConfig:
+    """Options of the real-scan rigid split.
+
+    Attributes:
+        scan: a KITTI Velodyne ``.bin`` (x forward, y left, z up; float32 x, y, z, reflectance).
+        calib: its calibration, object-benchmark format (P0..P3, R0_rect, Tr_velo_to_cam).
+        out: the split folder to write (one ``NNNNNN.npz`` per pair); written whole or not at all.
+        pairs: number of pairs, each with its own camera motion and split of the points.
+        seed: seed of the motions and the splits.
+        forward_m: the camera's forward motion between the two frames, metres (uniform in the range).
+        yaw_deg: largest turn of the camera about its y axis, degrees (uniform in ±).
+        pitch_deg: largest pitch of the camera about its x axis, degrees (uniform in ±).
+        ground_y: points with camera y at or below this height are ground and dropped, metres (y down).
+        max_depth: points with camera z at or beyond this are dropped, metres (FlowNet3D keeps z < 35).
+    """
+
+    scan: str = ""
+    calib: str = ""
+    out: str = ""
+    pairs: int = 12
+    seed: int = 0
+    forward_m: tuple[float, float] = (0.5, 1.5)
+    yaw_deg: float = 3.0
+    pitch_deg: float = 0.5
+    ground_y: float = 1.4
+    max_depth: float = 35.0
+
+
+def scan_in_camera(scan: str | Path, calib: str | Path, ground_y: float, max_depth: float) -> np.ndarray:
+    """The scan's non-ground points in front of the camera, rectified camera-0 frame (N, 3) float64 metres."""
+    from pipeline.kitti.calib import read_object_calib
+    from pipeline.kitti.velodyne import read_velodyne_bin
+
+    velo = read_velodyne_bin(scan)[:, :3].astype(np.float64)
+    cam = transform_points(read_object_calib(calib).velo_to_cam_rect(), velo)
+    keep = (cam[:, 2] > 0.0) & (cam[:, 2] < max_depth) & (cam[:, 1] < ground_y)
+    return cam[keep]
+
+
+def camera_motion(rng: np.random.Generator, cfg: RealRigidConfig) -> np.ndarray:
+    """``T_{t→t+1}`` (4, 4): camera-t coordinates → camera-(t+1) coordinates for one random forward motion
+    on an arc (the camera turns by yaw, its position moves along the chord's half angle)."""
+    d = rng.uniform(*cfg.forward_m)
+    yaw = np.deg2rad(rng.uniform(-cfg.yaw_deg, cfg.yaw_deg))
+    pitch = np.deg2rad(rng.uniform(-cfg.pitch_deg, cfg.pitch_deg))
+    pose = np.eye(4)  # camera t+1 in camera t's frame
+    pose[:3, :3] = euler_to_matrix(np.array([pitch, yaw, 0.0]))
+    pose[:3, 3] = d * np.array([np.sin(yaw / 2), 0.0, np.cos(yaw / 2)])
+    return se3_inverse(pose)
+
+
+def build_split(cfg: RealRigidConfig) -> int:
+    """Write ``cfg.pairs`` pairs to ``cfg.out`` (a fresh folder, renamed into place when complete);
+    returns the number of frame-t points per pair."""
+    from pipeline.synth.writer import frame_name, save_npz
+
+    points = scan_in_camera(cfg.scan, cfg.calib, cfg.ground_y, cfg.max_depth)
+    if len(points) < 64:
+        raise InputError(Path(cfg.scan), f"only {len(points)} non-ground points within {cfg.max_depth} m")
+    out = Path(cfg.out)
+    if out.exists():
+        raise InputError(out, "exists; choose a new folder (the split is written whole or not at all)")
+    part = out.with_name(out.name + ".partial")
+    shutil.rmtree(part, ignore_errors=True)
+    rng = np.random.default_rng(cfg.seed)
+    axes = FORMAT_AXES["flownet3d"]
+    half = len(points) // 2
+    for k in range(cfg.pairs):
+        T = camera_motion(rng, cfg)
+        order = rng.permutation(len(points))
+        first, second = points[order[:half]], points[order[half:]]
+        save_npz(part / f"{frame_name(k)}.npz",
+                 pos1=axes.from_camera(first).astype(np.float32),
+                 pos2=axes.from_camera(transform_points(T, second)).astype(np.float32),
+                 gt=axes.from_camera(static_flow(first, T)).astype(np.float32),
+                 moving=np.zeros(len(first), dtype=bool))
+    part.rename(out)
+    return half
+
+
+def _main(argv: list[str] | None) -> int:
+    from core.options import add_dataclass_args, build_config
+
+    p = argparse.ArgumentParser(prog="real_rigid", description=__doc__.split("\n\n")[0])
+    add_dataclass_args(p, RealRigidConfig)
+    cfg = build_config(RealRigidConfig, p.parse_args(argv), base=RealRigidConfig())
+    for name in ("scan", "calib", "out"):
+        if not getattr(cfg, name):
+            p.error(f"--{name} is required")
+    n = build_split(cfg)
+    print(f"real_rigid: {cfg.pairs} pairs of {n} points each in {cfg.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; a bad scan, calibration or an existing ``--out`` is one ``error:`` line, exit code 2."""
+    from core.errors import run_cli
+
+    return run_cli(_main, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,63 @@
+"""benchmarks/real_rigid.py: a rigid split from the real KITTI scan 000008, read back by the evaluation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from benchmarks.real_rigid import RealRigidConfig, build_split, main
+from evaluation.readers import load_split
+
+SCAN = "kitti_object_000008/000008.bin"
+CALIB = "kitti_object_000008/calib_000008.txt"
+
+
+def _cfg(shared_data: Path, out: Path, **kw) -> RealRigidConfig:
+    return RealRigidConfig(scan=str(shared_data / SCAN), calib=str(shared_data / CALIB), out=str(out), **kw)
+
+
+def test_the_true_flow_carries_frame_t_onto_frame_t1s_surfaces(shared_data: Path, tmp_path: Path):
+    cfg = _cfg(shared_data, tmp_path / "split", pairs=3)
+    n = build_split(cfg)
+    split = load_split(str(tmp_path / "split"), "auto")
+    assert len(split) == 3
+    for i in range(3):
+        s = split[i]
+        assert len(s.pc1) == n and len(s.pc2) >= n and not s.moving.any()
+        assert s.pc1[:, 2].min() > 0 and s.pc1[:, 2].max() < cfg.max_depth and s.pc1[:, 1].max() < cfg.ground_y
+        # the camera moves forward 0.5-1.5 m: every static point comes that much closer (camera z)
+        assert -1.6 < np.median(s.flow[:, 2]) < -0.4
+        tree = cKDTree(s.pc2)
+        moved, still = tree.query(s.pc1 + s.flow)[0], tree.query(s.pc1)[0]
+        # the halves are disjoint, so the truth leaves a sampling gap, but far below the zero flow's
+        assert np.median(moved) < 0.5 * np.median(still)
+        assert np.mean(moved > 1e-3) > 0.99  # no frame-t point has its own copy in frame t+1
+        # the flow is one rigid motion of frame t's points (static scene, eq. 11)
+        a, b = s.pc1.astype(np.float64), (s.pc1 + s.flow).astype(np.float64)
+        ca, cb = a.mean(0), b.mean(0)
+        u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+        d = np.sign(np.linalg.det(vt.T @ u.T))
+        R = vt.T @ np.diag([1, 1, d]) @ u.T
+        np.testing.assert_allclose(a @ R.T + (cb - R @ ca), b, atol=1e-4)
+
+
+def test_the_same_seed_writes_the_same_split(shared_data: Path, tmp_path: Path):
+    for name in ("a", "b"):
+        build_split(_cfg(shared_data, tmp_path / name, pairs=2, seed=5))
+    for f in ("000000.npz", "000001.npz"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes()
+
+
+def test_bad_input_is_one_line_and_writes_nothing(shared_data: Path, tmp_path: Path, capsys):
+    (tmp_path / "taken").mkdir()
+    assert main(["--scan", str(shared_data / SCAN), "--calib", str(shared_data / CALIB),
+                 "--out", str(tmp_path / "taken")]) == 2
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(b"\0" * 15)
+    assert main(["--scan", str(bad), "--calib", str(shared_data / CALIB), "--out", str(tmp_path / "new")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "taken" in err[0] and "bad.bin" in err[1] and "multiple of 16" in err[1]
+    assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
