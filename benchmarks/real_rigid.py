@@ -10,8 +10,11 @@ dropped as FlowNet3D's split does, and each pair then
 
 * splits the points at random into two disjoint halves: frame t keeps one, frame t+1 the other, so no
   point of frame t has an exact copy in frame t+1 (as with two real scans);
-* moves the camera forward by ``forward_m`` (uniform) along an arc that turns it by ``yaw_deg`` (uniform
-  ±) and pitches it by ``pitch_deg`` (±), the range of KITTI's 10 Hz odometry;
+* moves the camera by one frame-to-frame motion of the KITTI odometry ground truth (``poses``: pose files
+  ``NN.txt``, cam0 camera-to-world 3×4 rows), drawn at random over all their frames, so the motions follow
+  KITTI's 10 Hz distribution (over sequences 00–10: |yaw| median 0.15°, 95th percentile 2.6°; translation
+  median 0.94 m); without ``poses``, forward by ``forward_m`` (uniform) along an arc that turns it by
+  ``yaw_deg`` (uniform ±, median 1.5°: a stress test of turns) and pitches it by ``pitch_deg`` (±);
 * expresses frame t+1's half in the moved camera's frame; the true flow of frame t's points is the
   camera's motion alone (the paper's eq. 11, ``sf = (R p + t) − p``), every point static.
 
@@ -20,7 +23,8 @@ range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan. It 
 is measured on the synthetic splits only. Used in docs/learned-flow.md (sixteenth round)::
 
     python -m benchmarks.real_rigid --scan ../shared/data/kitti_object_000008/000008.bin \\
-        --calib ../shared/data/kitti_object_000008/calib_000008.txt --out w/real_rigid
+        --calib ../shared/data/kitti_object_000008/calib_000008.txt \\
+        --poses ../shared/data/kitti_odometry_gt_poses --pairs 24 --out w/real_kitti
     monoflow-evaluate run --split w/real_rigid --checkpoint runs/curve/step_000500.pt --protocol fps \\
         --baselines icp-p2p,nsfp --out eval_real_rigid
 """
@@ -47,6 +51,8 @@ class RealRigidConfig:
         scan: a KITTI Velodyne ``.bin`` (x forward, y left, z up; float32 x, y, z, reflectance).
         calib: its calibration, object-benchmark format (P0..P3, R0_rect, Tr_velo_to_cam).
         out: the split folder to write (one ``NNNNNN.npz`` per pair); written whole or not at all.
+        poses: KITTI odometry pose files (a ``NN.txt`` or a folder of them): the camera motions are drawn
+            from their consecutive frames; empty: the uniform ranges below.
         pairs: number of pairs, each with its own camera motion and split of the points.
         seed: seed of the motions and the splits.
         forward_m: the camera's forward motion between the two frames, metres (uniform in the range).
@@ -59,6 +65,7 @@ class RealRigidConfig:
     scan: str = ""
     calib: str = ""
     out: str = ""
+    poses: str = ""
     pairs: int = 12
     seed: int = 0
     forward_m: tuple[float, float] = (0.5, 1.5)
@@ -91,6 +98,22 @@ def camera_motion(rng: np.random.Generator, cfg: RealRigidConfig) -> np.ndarray:
     return se3_inverse(pose)
 
 
+def kitti_motions(poses: str | Path) -> np.ndarray:
+    """Every frame-to-frame ``T_{t→t+1}`` (M, 4, 4) of the KITTI pose files at ``poses`` (a file, or a
+    folder's ``NN.txt``), cam0 frame, metres: ``inv(Pose_{t+1}) · Pose_t``."""
+    from core.geometry import relative_pose
+    from pipeline.kitti.poses import read_poses
+
+    root = Path(poses)
+    files = [root] if root.is_file() else sorted(f for f in root.glob("*.txt") if f.stem.isdigit())
+    if not files:
+        raise InputError(root, "no KITTI pose files (NN.txt)")
+    rel = [relative_pose(p[:-1], p[1:]) for p in (read_poses(f) for f in files) if len(p) > 1]
+    if not rel:
+        raise InputError(root, "the pose files hold fewer than two frames each")
+    return np.concatenate(rel)
+
+
 def build_split(cfg: RealRigidConfig) -> int:
     """Write ``cfg.pairs`` pairs to ``cfg.out`` (a fresh folder, renamed into place when complete);
     returns the number of frame-t points per pair."""
@@ -107,8 +130,9 @@ def build_split(cfg: RealRigidConfig) -> int:
     rng = np.random.default_rng(cfg.seed)
     axes = FORMAT_AXES["flownet3d"]
     half = len(points) // 2
+    motions = kitti_motions(cfg.poses) if cfg.poses else None
     for k in range(cfg.pairs):
-        T = camera_motion(rng, cfg)
+        T = camera_motion(rng, cfg) if motions is None else motions[rng.integers(len(motions))]
         order = rng.permutation(len(points))
         first, second = points[order[:half]], points[order[half:]]
         save_npz(part / f"{frame_name(k)}.npz",

@@ -61,3 +61,26 @@ def test_bad_input_is_one_line_and_writes_nothing(shared_data: Path, tmp_path: P
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "taken" in err[0] and "bad.bin" in err[1] and "multiple of 16" in err[1]
     assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
+
+
+def test_motions_drawn_from_kitti_poses_are_kittis(shared_data: Path, tmp_path: Path):
+    from benchmarks.real_rigid import kitti_motions
+
+    poses = shared_data / "kitti_odometry_gt_poses"
+    motions = kitti_motions(poses / "06.txt")
+    assert motions.shape == (1100, 4, 4)  # 1101 poses in sequence 06
+    build_split(_cfg(shared_data, tmp_path / "split", pairs=2, poses=str(poses / "06.txt")))
+    split = load_split(str(tmp_path / "split"), "auto")
+    for i in range(2):
+        s = split[i]
+        # frame t's points moved by the flow are T p for one of sequence 06's frame-to-frame motions
+        errs = [np.abs(s.pc1 @ T[:3, :3].T + T[:3, 3] - (s.pc1 + s.flow)).max() for T in motions]
+        assert min(errs) < 1e-4
+
+
+def test_a_folder_without_pose_files_is_refused_in_one_line(shared_data: Path, tmp_path: Path, capsys):
+    assert main(["--scan", str(shared_data / SCAN), "--calib", str(shared_data / CALIB), "--poses", str(tmp_path),
+                 "--out", str(tmp_path / "new")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no KITTI pose files" in err[0]
+    assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
