@@ -20,7 +20,7 @@ dropped as FlowNet3D's split does, and each pair then
 
 So it checks the camera-motion part of the flow (most of KITTI's points) on real street geometry: the
 range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan. It has no movers; their error
-is measured on the synthetic splits only. Used in docs/learned-flow.md (sixteenth round)::
+is measured on the synthetic splits only. Used in docs/learned-flow.md (seventeenth round)::
 
     python -m benchmarks.real_rigid --scan ../shared/data/kitti_object_000008/000008.bin \\
         --calib ../shared/data/kitti_object_000008/calib_000008.txt \\
