@@ -66,7 +66,7 @@ class RealRigidConfig:
     calib: str = ""
     out: str = ""
     poses: str = ""
-    pairs: int = 12
+    pairs: int = 24
     seed: int = 0
     forward_m: tuple[float, float] = (0.5, 1.5)
     yaw_deg: float = 3.0
