@@ -25,8 +25,8 @@ is measured on the synthetic splits only. Used in docs/learned-flow.md (seventee
     python -m benchmarks.real_rigid --scan ../shared/data/kitti_object_000008/000008.bin \\
         --calib ../shared/data/kitti_object_000008/calib_000008.txt \\
         --poses ../shared/data/kitti_odometry_gt_poses --pairs 24 --out w/real_kitti
-    monoflow-evaluate run --split w/real_rigid --checkpoint runs/curve/step_000500.pt --protocol fps \\
-        --baselines icp-p2p,nsfp --out eval_real_rigid
+    monoflow-evaluate run --split w/real_kitti --checkpoint runs/curve/step_000500.pt --protocol fps \\
+        --baselines icp-p2p,nsfp --out eval_real_kitti
 """
 
 from __future__ import annotations
@@ -77,12 +77,13 @@ class RealRigidConfig:
 
 def scan_in_camera(scan: str | Path, calib: str | Path, ground_y: float, max_depth: float) -> np.ndarray:
     """The scan's non-ground points in front of the camera, rectified camera-0 frame (N, 3) float64 metres."""
+    from pipeline.filters import far_keep, ground_keep
     from pipeline.kitti.calib import read_object_calib
     from pipeline.kitti.velodyne import read_velodyne_bin
 
     velo = read_velodyne_bin(scan)[:, :3].astype(np.float64)
     cam = transform_points(read_object_calib(calib).velo_to_cam_rect(), velo)
-    keep = (cam[:, 2] > 0.0) & (cam[:, 2] < max_depth) & (cam[:, 1] < ground_y)
+    keep = (cam[:, 2] > 0.0) & far_keep(cam, max_depth) & ground_keep(cam, ground_y)
     return cam[keep]
 
 

@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from benchmarks.real_rigid import RealRigidConfig, build_split, main
+from benchmarks.sensor_gap import static_motion
 from evaluation.readers import load_split
 
 SCAN = "kitti_object_000008/000008.bin"
@@ -36,12 +37,9 @@ def test_the_true_flow_carries_frame_t_onto_frame_t1s_surfaces(shared_data: Path
         assert np.median(moved) < 0.5 * np.median(still)
         assert np.mean(moved > 1e-3) > 0.99  # no frame-t point has its own copy in frame t+1
         # the flow is one rigid motion of frame t's points (static scene, eq. 11)
-        a, b = s.pc1.astype(np.float64), (s.pc1 + s.flow).astype(np.float64)
-        ca, cb = a.mean(0), b.mean(0)
-        u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-        d = np.sign(np.linalg.det(vt.T @ u.T))
-        R = vt.T @ np.diag([1, 1, d]) @ u.T
-        np.testing.assert_allclose(a @ R.T + (cb - R @ ca), b, atol=1e-4)
+        a = s.pc1.astype(np.float64)
+        R, t = static_motion(a, s.flow.astype(np.float64))
+        np.testing.assert_allclose(a @ R.T + t, a + s.flow, atol=1e-4)
 
 
 def test_the_same_seed_writes_the_same_split(shared_data: Path, tmp_path: Path):
