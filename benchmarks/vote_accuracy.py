@@ -22,12 +22,15 @@ import numpy as np
 from benchmarks.named_folders import named_folder
 
 
-def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed: int = 0) -> np.ndarray:
+def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed: int = 0,
+                rigid: str = "") -> np.ndarray:
     """Per pair, the mean static-point error of the voted translation (metres); ``samples`` yield
-    :class:`evaluation.sample.SceneFlowSample`."""
+    :class:`evaluation.sample.SceneFlowSample`. ``rigid`` "free" or "planar": of the rigid vote's flow
+    ``R p + t − p`` instead (:mod:`training.model.rigid_vote`), fitted on the same level-0 samples."""
     import torch
 
-    from training.model.translation_vote import VoteConfig, vote_between_samples
+    from training.model.rigid_vote import RigidVoteConfig, vote_rigid
+    from training.model.translation_vote import VoteConfig, farthest_samples, vote_between_samples
 
     rng = np.random.default_rng(seed)
     cfg = VoteConfig(candidates=candidates)
@@ -36,10 +39,14 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
         i1 = rng.choice(len(s.pc1), min(n_points, len(s.pc1)), replace=False)
         i2 = rng.choice(len(s.pc2), min(n_points, len(s.pc2)), replace=False)
         p1, p2 = (torch.from_numpy(np.ascontiguousarray(x)).float()[None] for x in (s.pc1[i1], s.pc2[i2]))
-        t = vote_between_samples(p1, p2, level_points, cfg)[0].numpy()
+        if rigid:
+            R, t = vote_rigid(farthest_samples(p1, level_points), farthest_samples(p2, level_points), RigidVoteConfig(vote=cfg, planar=rigid == "planar"))
+            t = (p1[0] @ R[0].T + t[0] - p1[0]).numpy()
+        else:
+            t = vote_between_samples(p1, p2, level_points, cfg)[0].numpy()
         static = np.ones(len(i1), bool) if s.moving is None else ~np.asarray(s.moving, bool)[i1]
         if static.any():
-            out.append(float(np.linalg.norm(s.flow[i1][static] - t, axis=1).mean()))
+            out.append(float(np.linalg.norm(s.flow[i1][static] - (t[static] if t.ndim == 2 else t), axis=1).mean()))
     return np.asarray(out)
 
 
@@ -53,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--level-points", type=int, default=512)
     p.add_argument("--candidates", default="1,4", help="comma list of VoteConfig.candidates to compare")
     p.add_argument("--fail-m", type=float, default=0.5)
+    p.add_argument("--rigid", default="", help="comma list of rigid-vote modes to add (free, planar): the vote "
+                   "followed by trimmed rigid matching (training.model.rigid_vote)")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
 
@@ -77,12 +86,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if not sources:
         p.error("give at least one --cache or --split")
-    print(f"| source | candidates | pairs | mean static error (m) | median | failures (> {args.fail_m} m) |")
-    print("|---|---|---|---|---|---|")
+    print(f"| source | vote | candidates | pairs | mean static error (m) | median | failures (> {args.fail_m} m) |")
+    print("|---|---|---|---|---|---|---|")
+    modes = [""] + [m for m in args.rigid.split(",") if m]
     for name, samples in sources.items():
         for k in (int(c) for c in args.candidates.split(",")):
-            e = vote_errors(samples, args.n_points, args.level_points, k)
-            print(f"| {name} | {k} | {len(e)} | {e.mean():.3f} | {np.median(e):.3f} | {int((e > args.fail_m).sum())} |")
+            for mode in modes:
+                e = vote_errors(samples, args.n_points, args.level_points, k, rigid=mode)
+                print(f"| {name} | {mode or 'translation'} | {k} | {len(e)} | {e.mean():.3f} | {np.median(e):.3f} "
+                      f"| {int((e > args.fail_m).sum())} |")
     return 0
 
 

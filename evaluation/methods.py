@@ -176,6 +176,12 @@ def _tvote() -> FlowMethod:
     return BaselineMethod(TranslationVoteBaseline())
 
 
+def _rvote() -> FlowMethod:
+    from evaluation.baselines.rigid_vote import RigidVoteBaseline
+
+    return BaselineMethod(RigidVoteBaseline())
+
+
 def _nsfp() -> FlowMethod:
     from evaluation.optimise import NSFPMethod
 
@@ -201,6 +207,7 @@ _METHODS: dict[str, MethodEntry] = {
     "icp-p2l": MethodEntry(lambda: _icp("point_to_plane")),
     "fgr": MethodEntry(_fgr),
     "tvote": MethodEntry(_tvote, note="one translation voted from all point-pair offsets"),
+    "rvote": MethodEntry(_rvote, note="the voted translation refined to a rigid motion by trimmed matching"),
     "nsfp": MethodEntry(_nsfp),
     "refine": MethodEntry(refined, wraps=True, note="label-free test-time refinement of another method"),
     "view-prune": MethodEntry(_view_pruned, wraps=True,

@@ -37,6 +37,7 @@ from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stat
 from training.model.layers import SharedMLP, scaled
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
+from training.model.rigid_vote import RigidVoteConfig, vote_rigid
 from training.model.translation_vote import VoteConfig, vote_translation
 from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
 
@@ -244,11 +245,17 @@ class HALFlowNet(nn.Module):
         else:
             p1, p2 = self._encode(x1, feat1, given1), self._encode(x2, feat2, given2)
 
-        shift = None
+        shift, turn = None, None
         if cfg.translation_vote:  # pre-align frame 2 by the voted camera translation (encoder features are
             # built from neighbour offsets, so they do not change; every flow gets the shift back at the end)
-            shift = vote_translation(p1.xyz[0], p2.xyz[0], VoteConfig(max_translation_m=cfg.translation_vote_max_m))
-            p2.xyz = [x - shift[:, None] for x in p2.xyz]
+            vote = VoteConfig(max_translation_m=cfg.translation_vote_max_m)
+            if cfg.rigid_vote:  # and rotation: frame 2 moved by the inverse motion, R⁻¹ (q − t) = (q − t) R
+                # row-wise; the features keep the offsets of the unturned cloud (a few degrees apart)
+                turn, shift = vote_rigid(p1.xyz[0], p2.xyz[0], RigidVoteConfig(vote=vote))
+                p2.xyz = [(x - shift[:, None]) @ turn for x in p2.xyz]
+            else:
+                shift = vote_translation(p1.xyz[0], p2.xyz[0], vote)
+                p2.xyz = [x - shift[:, None] for x in p2.xyz]
 
         n3, n4 = cfg.level_points[3], cfg.level_points[4]
         xyz2_3, feat2_3, s = self._down(self.sa3_pc2, p2.xyz[2], p2.feat[2], n3, given2[3])
@@ -306,9 +313,14 @@ class HALFlowNet(nn.Module):
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)
         gates.insert(0, gate)  # the level's last head call: the one that made its output
 
-        if shift is not None:
-            flows = [f + shift[:, None] for f in flows]
-            rigids = [r if r is None else r + shift[:, None] for r in rigids]
+        if shift is not None:  # undo the pre-alignment: f ↦ R (p + f) + t − p at each level's points p
+            def back(f: Tensor, p: Tensor) -> Tensor:
+                if turn is None:
+                    return f + shift[:, None]
+                return (p + f) @ turn.transpose(1, 2) + shift[:, None] - p
+
+            flows = [back(f, p1.xyz[i]) for i, f in enumerate(flows)]
+            rigids = [r if r is None else back(r, p1.xyz[i]) for i, r in enumerate(rigids)]
         idx1, idx2 = p1.idx[:4], p2.idx[:4]
         return FlowOutput(
             flows=flows,

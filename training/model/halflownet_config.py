@@ -47,6 +47,12 @@ class HALFlowConfig:
         that pre-alignment, and its response to a change of speed is one as far as the vote is right;
         false = the paper's form. A departure (docs/learned-flow.md, tenth round).
     translation_vote_max_m: metres; the vote's search cube is ±this along every camera axis.
+    rigid_vote: with ``translation_vote``, pre-align by the camera's whole rigid motion instead of its
+        translation: the vote, then trimmed nearest-neighbour rigid matching of the two clouds' L0 points
+        (:mod:`training.model.rigid_vote`, no learning, no gradient); frame 2's points are moved by the
+        inverse motion, and every output flow ``f`` becomes ``R (p + f) + t − p``. The net regresses what the
+        camera's rotation and translation leave, so it need not learn to read a turn from the training
+        worlds' few; false = the translation alone. A departure (docs/learned-flow.md, eighteenth round).
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -108,6 +114,7 @@ class HALFlowConfig:
     coarse_match_sigma_m: float = 5.0
     translation_vote: bool = False
     translation_vote_max_m: float = 3.0
+    rigid_vote: bool = False
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -139,6 +146,8 @@ class HALFlowConfig:
             raise ConfigError(f"coarse_match_sigma_m must be > 0, got {self.coarse_match_sigma_m}")
         if not self.translation_vote_max_m > 0:
             raise ConfigError(f"translation_vote_max_m must be > 0, got {self.translation_vote_max_m}")
+        if self.rigid_vote and not self.translation_vote:
+            raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
         if not self.width_scale > 0:
             raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
         if self.sampling not in ("fps", "random"):

@@ -33,6 +33,7 @@ registration.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -83,17 +84,31 @@ def _refine(a: Tensor, b: Tensor, t: Tensor, radii: tuple[float, ...]) -> Tensor
     return t
 
 
-def _explained(a: Tensor, b: Tensor, t: Tensor, spacing: Tensor) -> Tensor:
-    """How many points of ``a`` (H, M, 3) have a point of ``b`` (H, N, 3) within their own ``spacing``
-    (H, M) after the shift ``t`` (H, 3): a sparse far point counts as readily as a dense near one, so the
-    count measures how much of the scene a shift explains."""
-    return (torch.cdist(a + t[:, None], b).min(dim=2).values < spacing).to(a.dtype).sum(1)
+def explained(moved: Tensor, b: Tensor, spacing: Tensor) -> Tensor:
+    """How many of the moved frame-1 points ``moved`` (H, M, 3) have a point of ``b`` (H, N, 3) within their
+    own ``spacing`` (H, M): a sparse far point counts as readily as a dense near one, so the count
+    measures how much of the scene a motion explains (step 3 of the module docstring)."""
+    return (torch.cdist(moved, b).min(dim=2).values < spacing).to(moved.dtype).sum(1)
+
+
+class VoteHypotheses(NamedTuple):
+    """What the vote weighs before it picks (:func:`vote_hypotheses`).
+
+    t (B, K, 3): the refined translations of the K fullest histogram maxima, metres. explained (B, K): how
+    many frame-1 points each explains. spacing (B, M): each frame-1 point's sampling spacing (distance to
+    its nearest frame-1 neighbour, at least the last radius). found (B,): whether any offset fell inside
+    the search cube."""
+
+    t: Tensor
+    explained: Tensor
+    spacing: Tensor
+    found: Tensor
 
 
 @torch.no_grad()
-def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None) -> Tensor:
-    """The dominant translation (B, 3) in metres that moves frame-1 points ``xyz1`` (B, M, 3) onto
-    frame-2 points ``xyz2`` (B, N, 3); zero for a cloud with no offset inside the search cube."""
+def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None) -> VoteHypotheses:
+    """Steps 1–2 of the module docstring and the scores of step 3, for frame-1 points ``xyz1`` (B, M, 3)
+    and frame-2 points ``xyz2`` (B, N, 3), metres (float32 results)."""
     cfg = config or VoteConfig()
     x1, x2 = xyz1.detach().float(), xyz2.detach().float()
     B = x1.shape[0]
@@ -121,10 +136,20 @@ def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = Non
     self_d = torch.cdist(x1, x1)  # each frame-1 point's sampling spacing, at least the last radius
     self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
     spacing = self_d.min(dim=2).values.clamp_min(cfg.bandwidths_m[-1])
-    matched = _explained(a, b, t, spacing[:, None].expand(B, k, -1).reshape(B * k, -1)).reshape(B, k)
-    t = t.reshape(B, k, 3)[torch.arange(B), matched.argmax(dim=1)]
-    t = torch.where(inside.any(dim=1, keepdim=True), t, torch.zeros_like(t))
+    matched = explained(a + t[:, None], b, spacing[:, None].expand(B, k, -1).reshape(B * k, -1)).reshape(B, k)
+    return VoteHypotheses(t.reshape(B, k, 3), matched, spacing, inside.any(dim=1))
+
+
+@torch.no_grad()
+def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None) -> Tensor:
+    """The dominant translation (B, 3) in metres that moves frame-1 points ``xyz1`` (B, M, 3) onto
+    frame-2 points ``xyz2`` (B, N, 3); zero for a cloud with no offset inside the search cube."""
+    h = vote_hypotheses(xyz1, xyz2, config)
+    t = h.t[torch.arange(h.t.shape[0]), h.explained.argmax(dim=1)]
+    t = torch.where(h.found[:, None], t, torch.zeros_like(t))
     return t.to(xyz1.dtype)
+
+
 
 
 def vote_between_samples(xyz1: Tensor, xyz2: Tensor, sample_points: int, config: VoteConfig | None = None) -> Tensor:
@@ -133,11 +158,14 @@ def vote_between_samples(xyz1: Tensor, xyz2: Tensor, sample_points: int, config:
     ``sample_points`` 0, is used whole. A LiDAR cloud is densest near the sensor, and on its raw points the
     count of explained frame-1 points is dominated by the nearest few metres; the sample spreads them over
     the scene. Serves the ``tvote`` baseline and ``benchmarks.vote_accuracy``."""
+    return vote_translation(farthest_samples(xyz1, sample_points), farthest_samples(xyz2, sample_points), config)
+
+
+def farthest_samples(xyz: Tensor, sample_points: int) -> Tensor:
+    """``sample_points`` farthest-point samples of ``xyz`` (B, N, 3), as the net's L0 takes them; the cloud
+    itself when it has no more points than that or ``sample_points`` is 0."""
     from training.pointops import farthest_point_sample, gather_points
 
-    def sampled(x: Tensor) -> Tensor:
-        if sample_points <= 0 or x.shape[1] <= sample_points:
-            return x
-        return gather_points(x, farthest_point_sample(x, sample_points))
-
-    return vote_translation(sampled(xyz1), sampled(xyz2), config)
+    if sample_points <= 0 or xyz.shape[1] <= sample_points:
+        return xyz
+    return gather_points(xyz, farthest_point_sample(xyz, sample_points))

@@ -1,0 +1,100 @@
+"""The camera's whole rigid motion between two clouds: the translation vote, then trimmed rigid matching.
+
+The translation vote (:mod:`training.model.translation_vote`) finds the camera's translation without an
+initial guess, but a translation only: a turn of θ moves a static point at range ρ by about θ·ρ, 0.4 m at
+30 m for KITTI's mean 0.8° per frame and 1.4 m for its 95th percentile 2.6°, and the net downstream of
+the vote never learned to read that rotation (docs/learned-flow.md, seventeenth round: its rotation error
+equals the split's rotation at every level). This module starts where the vote ends and fits the rotation
+too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinking inlier radii):
+
+1. ``T ← (I, t)`` for each of the vote's refined hypotheses ``t`` (its fullest histogram maxima);
+2. for every radius of ``radii_m``, widest first, ``rounds`` times: every frame-1 point ``p`` takes the
+   frame-2 point nearest to ``T p``; the pairs closer than the radius are inliers; ``T`` ← the rigid
+   motion that maps the inliers' ``p`` onto their matches in least squares
+   (:func:`~training.model.ego_motion.weighted_rigid_fit`, Kabsch; or a turn about y and a translation in
+   x–z with ``planar``, :func:`~training.model.ego_motion.weighted_planar_fit`);
+3. a hypothesis whose last round keeps fewer than ``min_inliers`` pairs keeps its translation alone;
+4. the hypothesis whose motion explains the most frame-1 points (each has a frame-2 point within its own
+   sampling spacing, the vote's own step 3) wins. The vote picks among translations, so under a turn,
+   which spreads the static scene's votes by θ·ρ, a dense mover can win it; picking after the rigid
+   rounds compares every hypothesis at its best.
+
+The vote puts the fit in the right basin (what plain ICP from the identity lacks on fast scenes), the
+trimmed rounds drop the pairs a mover or an occlusion makes, as the vote's own refinement does. No
+learning and no gradient; a fixed number of closed-form steps. Camera frames (x right, y down, z forward),
+metres; ``(R, t)`` maps frame-1 points onto frame 2: ``q ≈ R p + t`` (eq. 11's static flow
+``R p + t − p``). Serves :class:`~training.model.halflownet.HALFlowNet` (``model.rigid_vote``) and the
+``rvote`` baseline of :mod:`evaluation.methods`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from training.model.ego_motion import weighted_planar_fit, weighted_rigid_fit
+from training.model.translation_vote import VoteConfig, explained, vote_hypotheses
+
+
+@dataclass(frozen=True)
+class RigidVoteConfig:
+    """The rigid stage after the translation vote (distances in metres).
+
+    vote: the translation vote that starts it.
+    radii_m: inlier radii of the trimmed rigid rounds, widest first; the widest should cover what a
+        turn moves a far point by (θ·ρ: 1 m is 2° at 30 m).
+    rounds: matching rounds per radius.
+    planar: fit a turn about the camera's y axis and a translation in x–z (a level camera on a ground
+        vehicle) instead of a free rigid motion.
+    min_inliers: a hypothesis with fewer inlier pairs in its last round keeps its translation alone.
+    """
+
+    vote: VoteConfig = VoteConfig()
+    radii_m: tuple[float, ...] = (1.0, 0.5, 0.25, 0.1)
+    rounds: int = 2
+    planar: bool = False
+    min_inliers: int = 16
+
+    def __post_init__(self) -> None:
+        if not (self.radii_m and all(r > 0 for r in self.radii_m) and self.rounds >= 1 and self.min_inliers >= 3):
+            raise ValueError(f"need positive radii_m, rounds >= 1 and min_inliers >= 3, got {self}")
+
+
+@torch.no_grad()
+def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None) -> tuple[Tensor, Tensor]:
+    """The rotation R (B, 3, 3) and translation t (B, 3) taking ``xyz1`` (B, N, 3) onto ``xyz2`` (B, M, 3),
+    metres, one common camera frame (module docstring). No gradient."""
+    cfg = config or RigidVoteConfig()
+    fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
+    h = vote_hypotheses(xyz1, xyz2, cfg.vote)
+    B, K = h.t.shape[:2]
+    # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
+    a = xyz1.detach().double()[:, None].expand(B, K, *xyz1.shape[1:]).reshape(B * K, -1, 3)
+    b = xyz2.detach().double()[:, None].expand(B, K, *xyz2.shape[1:]).reshape(B * K, -1, 3)
+    t0 = h.t.double().reshape(B * K, 3)
+    eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
+    R, t = eye.clone(), t0.clone()
+    count = torch.zeros(B * K, dtype=a.dtype, device=a.device)
+    for radius in cfg.radii_m:
+        for _ in range(cfg.rounds):
+            dist, nn = torch.cdist(a @ R.transpose(1, 2) + t[:, None], b).min(dim=2)
+            inlier = (dist < radius).to(a.dtype)
+            count = inlier.sum(1)
+            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
+            R_new, t_new = fit(a, q, inlier + 1e-12 * (count[:, None] == 0))
+            ok = count >= cfg.min_inliers
+            R = torch.where(ok[:, None, None], R_new, R)
+            t = torch.where(ok[:, None], t_new, t)
+    keep = count >= cfg.min_inliers  # else the hypothesis's translation alone
+    R = torch.where(keep[:, None, None], R, eye)
+    t = torch.where(keep[:, None], t, t0)
+    # step 3 of the vote with the whole motion: the hypothesis that explains the most frame-1 points
+    spacing = h.spacing.double()[:, None].expand(B, K, -1).reshape(B * K, -1)
+    score = explained(a @ R.transpose(1, 2) + t[:, None], b, spacing).reshape(B, K)
+    pick = score.argmax(dim=1)
+    R, t = R.reshape(B, K, 3, 3)[torch.arange(B), pick], t.reshape(B, K, 3)[torch.arange(B), pick]
+    R = torch.where(h.found[:, None, None], R, torch.eye(3, dtype=R.dtype, device=R.device))
+    t = torch.where(h.found[:, None], t, torch.zeros_like(t))
+    return R.to(xyz1.dtype), t.to(xyz1.dtype)
