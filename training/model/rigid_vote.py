@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from training.knn import knn
 from training.model.ego_motion import weighted_planar_fit, weighted_rigid_fit
 from training.model.translation_vote import VoteConfig, explained, vote_hypotheses
 
@@ -79,8 +80,9 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     count = torch.zeros(B * K, dtype=a.dtype, device=a.device)
     for radius in cfg.radii_m:
         for _ in range(cfg.rounds):
-            dist, nn = torch.cdist(a @ R.transpose(1, 2) + t[:, None], b).min(dim=2)
-            inlier = (dist < radius).to(a.dtype)
+            d2, nn = knn(a @ R.transpose(1, 2) + t[:, None], b, 1)  # KD-tree on CPU, dense on CUDA
+            inlier = (d2[..., 0] < radius * radius).to(a.dtype)
+            nn = nn[..., 0]
             count = inlier.sum(1)
             q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
             R_new, t_new = fit(a, q, inlier + 1e-12 * (count[:, None] == 0))
