@@ -137,3 +137,31 @@ def test_the_rvote_baseline_gives_every_point_the_rigid_flow():
     assert flow.shape == pc1.shape and flow.dtype == np.float32
     truth = (pc1 @ R_true.T + t_true - pc1).numpy()
     assert np.linalg.norm(flow - truth, axis=1).mean() < 0.08
+
+
+def test_holding_the_l0_ego_head_keeps_a_uniform_pull_of_the_finest_level_out_of_the_camera_motion():
+    """``ego_l0_hold``: a refinement at L0 that pushes every point 0.5 m forward (the L0 cost volume's
+    forward pull on real clouds, eighteenth round, made exact) moves the refitted camera motion with it; held
+    at the motion fitted before that cost volume, the camera's rigid flow does not move, and the points it holds
+    keep it (the push is within the gate's robust scale, three robust standard deviations of the residuals)."""
+    R_true, t_true = _turn(1.0), torch.tensor([0.0, 0.0, 1.0])
+    pc1 = _street(512)
+    pc2 = pc1[:, torch.randperm(512, generator=torch.Generator().manual_seed(4))] @ R_true.T + t_true
+    outs = {}
+    for hold in (False, True):
+        for push in (0.0, 0.5):
+            torch.manual_seed(0)
+            net = HALFlowNet(_cfg(rigid_vote=True, zero_flow_heads=True, ego_head=True, l0_cost_volume=True,
+                                  ego_l0_hold=hold)).eval()
+            with torch.no_grad():
+                net.head0_refine.linear.bias.copy_(torch.tensor([0.0, 0.0, push]))
+                outs[hold, push] = net(pc1, pc2)
+    moved = (outs[False, 0.5].rigid_flows[0] - outs[False, 0.0].rigid_flows[0]).norm(dim=-1).mean()
+    held = (outs[True, 0.5].rigid_flows[0] - outs[True, 0.0].rigid_flows[0]).norm(dim=-1).mean()
+    assert moved > 0.4 and held < 1e-4, (moved, held)
+    # the held points leak the gate's share of the push: m = r⁴ / (s⁴ + r⁴) with s = 3 · 1.4826 · r, 1/393 of 0.5 m
+    assert torch.allclose(outs[True, 0.5].flows[0], outs[True, 0.0].flows[0], atol=2e-3)
+    p = outs[True, 0.0].points[0]
+    assert torch.allclose(outs[True, 0.0].flows[0], p @ R_true.T + t_true - p, atol=0.01)
+    with pytest.raises(ConfigError, match="ego_l0_hold"):
+        _cfg(ego_l0_hold=True, ego_head=True)

@@ -104,7 +104,8 @@ def gate_value(r2: Tensor, s2: Tensor | float) -> Tensor:
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
-                        gate_spacing: float = 0.0, open_k: int = 0) -> EgoSplit:
+                        gate_spacing: float = 0.0, open_k: int = 0,
+                        motion: tuple[Tensor, Tensor] | None = None) -> EgoSplit:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual
     (an :class:`EgoSplit`). ``sigma`` (metres) is the residual
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
@@ -127,13 +128,18 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     produces on static points — does not open the gate; the fit is unchanged. ``open_k`` > 1 with
     ``open_gradient``: the straight-through term uses the mean own flow of each point's ``open_k`` nearest
     points instead of its own, ``(1 − m) ⊙ (f̄ − sg(f̄))``, so the gradient a held point passes on is shared
-    evenly by its neighbourhood (values unchanged).
+    evenly by its neighbourhood (values unchanged). ``motion`` (R (B, 3, 3), t (B, 3)): hold the points at
+    this rigid motion instead of fitting one (no fit, no re-weighting; the scale and the gate as above, from
+    the residuals against it) — a motion fitted elsewhere, e.g. at a coarser level.
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
     s2 = torch.full((points.shape[0], 1), sigma * sigma, dtype=points.dtype, device=points.device)
-    for _ in range(max(1, iterations)):
-        R, t = (weighted_planar_fit if planar else weighted_rigid_fit)(points, target, weights)
+    for _ in range(1 if motion is not None else max(1, iterations)):
+        if motion is not None:
+            R, t = motion[0].to(points.dtype), motion[1].to(points.dtype)
+        else:
+            R, t = (weighted_planar_fit if planar else weighted_rigid_fit)(points, target, weights)
         with torch.no_grad():
             moved = points @ R.transpose(1, 2) + t[:, None]
             r2 = ((target - moved) ** 2).sum(-1)

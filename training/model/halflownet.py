@@ -119,23 +119,25 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor,
-             frame2: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None]:
+    def _ego(self, xyz: Tensor, flow: Tensor, frame2: Tensor,
+             motion: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None,
+                                                                 tuple[Tensor, Tensor] | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
         motion's flow ``T̂ p − p``, the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
         and the output, differentiable in the former (:mod:`training.losses.gate_pull`), and the gate
         ``m`` (B, n) in [0, 1] (0: held at the rigid flow); None without the head. ``frame2``: the level's
-        frame-2 points (for ``ego_gate_spacing``)."""
+        frame-2 points (for ``ego_gate_spacing``); ``motion``: hold at this (R, t) instead of fitting one. Last,
+        the fitted (or given) motion (R (B, 3, 3), t (B, 3)), None without the head."""
         cfg = self.config
         if not cfg.ego_head:
-            return flow, None, None, None
+            return flow, None, None, None, None
         x = xyz.float()
         out, R, t, _, gate = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k,
-                                           frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k)
+                                           frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k, motion)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         gap = ((flow.float() - out.detach()) ** 2).sum(-1)
-        return out.to(flow.dtype), rigid.to(flow.dtype), gap, gate
+        return out.to(flow.dtype), rigid.to(flow.dtype), gap, gate, (R, t)
 
     def _down(
         self, layer: SetConv, xyz: Tensor, feat: Tensor, n: int, given: Tensor | None = None
@@ -281,7 +283,7 @@ class HALFlowNet(nn.Module):
             coarse = coarse + self.coarse_translation(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])[:, None]
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow, rigid, gap, gate = self._ego(xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
+        flow, rigid, gap, gate, _ = self._ego(xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
         flows, rigids, gaps, gates = [flow], [rigid], [gap], [gate]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
@@ -292,7 +294,7 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid, gap, gate = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
+            flow, rigid, gap, gate, _ = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
             flows.insert(0, flow)
             rigids.insert(0, rigid)
             gaps.insert(0, gap)
@@ -302,12 +304,12 @@ class HALFlowNet(nn.Module):
         hidden = self.fc0(self.fp0(p1.xyz[0], p1.xyz[1], p1.feat[0], hidden))
         coarse = three_nn_interpolate(p1.xyz[0], p1.xyz[1], flow, backend=cfg.knn_backend)
         flow = coarse + self.head0(hidden)
-        gap0 = None
+        gap0, before = None, None
         if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
-            flow, _, gap0, _ = self._ego(p1.xyz[0], flow, p2.xyz[0])
+            flow, _, gap0, _, before = self._ego(p1.xyz[0], flow, p2.xyz[0])
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
-        flow, rigid, gap, gate = self._ego(p1.xyz[0], flow, p2.xyz[0])
+        flow, rigid, gap, gate, _ = self._ego(p1.xyz[0], flow, p2.xyz[0], before if cfg.ego_l0_hold else None)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)

@@ -62,6 +62,11 @@ class HALFlowConfig:
         residual of the cloud) — a robust estimate of the net's own noise (3 = the usual outlier limit in
         standard deviations), so that a noisy net does not call its static points moving; 0 = ego_sigma.
     ego_iterations: re-weighting rounds of the robust rigid fit.
+    ego_l0_hold: with ``ego_head`` and ``l0_cost_volume``: the ego head after the L0 cost volume does not
+        refit the camera's motion, it holds the points at the motion fitted just before that cost volume (to
+        the flow propagated from L1), and only points whose refined flow departs from it keep their own — so
+        the finest matching can move what the gate lets go (movers) but not the camera; false = it refits
+        (eighteenth round: on the real scan the L0 cost volume lengthened the camera's translation).
     ego_planar: restrict the fitted camera motion to a ground vehicle's with a level camera — a turn about
         the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
         degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
@@ -120,6 +125,7 @@ class HALFlowConfig:
     ego_mad_factor: float = 3.0
     ego_iterations: int = 4
     ego_planar: bool = False
+    ego_l0_hold: bool = False
     ego_open_gradient: bool = False
     zero_flow_heads: bool = False
     ego_open_gradient_k: int = 0
@@ -146,6 +152,9 @@ class HALFlowConfig:
             raise ConfigError(f"coarse_match_sigma_m must be > 0, got {self.coarse_match_sigma_m}")
         if not self.translation_vote_max_m > 0:
             raise ConfigError(f"translation_vote_max_m must be > 0, got {self.translation_vote_max_m}")
+        if self.ego_l0_hold and not (self.ego_head and self.l0_cost_volume):
+            raise ConfigError("model.ego_l0_hold holds the L0 ego head at a motion fitted before the L0 cost volume: "
+                              "it needs model.ego_head and model.l0_cost_volume true")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
         if not self.width_scale > 0:
