@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from _street import walls_and_poles
 from core.errors import ConfigError
 from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
@@ -17,14 +18,8 @@ from training.model.translation_vote import vote_translation
 
 
 def _street(n: int, seed: int = 0) -> torch.Tensor:
-    """(1, n, 3) points on a left wall, a facade 30 m ahead and a row of poles, metres (camera frame)."""
-    g = torch.Generator().manual_seed(seed)
-    u = torch.rand(n, 3, generator=g)
-    kind = torch.arange(n) % 3
-    wall_left = torch.stack([torch.full((n,), -6.0), 2 * u[:, 1] - 1, 5 + 30 * u[:, 2]], -1)
-    facade = torch.stack([-10 + 20 * u[:, 0], 2 * u[:, 1] - 1, torch.full((n,), 30.0)], -1)
-    poles = torch.stack([4 + (u[:, 0] * 4).floor(), 2 * u[:, 1] - 1, 8 + 5 * (u[:, 2] * 4).floor()], -1)
-    return torch.where(kind[:, None] == 0, wall_left, torch.where(kind[:, None] == 1, facade, poles))[None]
+    """The vote tests' street with a facade 20 m wide, so that a turn shows across it."""
+    return walls_and_poles(n, seed, facade_half_width_m=10.0)
 
 
 def _turn(deg_yaw: float, deg_pitch: float = 0.0) -> torch.Tensor:

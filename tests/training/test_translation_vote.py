@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from _street import walls_and_poles
 from core.errors import ConfigError
 from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
@@ -14,14 +15,7 @@ from training.model.translation_vote import VoteConfig, vote_translation
 
 
 def _street(n: int, seed: int = 0) -> torch.Tensor:
-    """(1, n, 3) points on a few walls and poles, metres (camera frame: x right, y down, z forward)."""
-    g = torch.Generator().manual_seed(seed)
-    u = torch.rand(n, 3, generator=g)
-    kind = torch.arange(n) % 3
-    wall_left = torch.stack([torch.full((n,), -6.0), 2 * u[:, 1] - 1, 5 + 30 * u[:, 2]], -1)
-    facade = torch.stack([-6 + 12 * u[:, 0], 2 * u[:, 1] - 1, torch.full((n,), 30.0)], -1)
-    poles = torch.stack([4 + (u[:, 0] * 4).floor(), 2 * u[:, 1] - 1, 8 + 5 * (u[:, 2] * 4).floor()], -1)
-    return torch.where(kind[:, None] == 0, wall_left, torch.where(kind[:, None] == 1, facade, poles))[None]
+    return walls_and_poles(n, seed)
 
 
 @pytest.mark.parametrize("shift", [(0.0, 0.0, -0.6), (0.05, 0.0, -1.2), (0.3, -0.1, -2.4)])
