@@ -35,9 +35,9 @@ from training.model.ego_motion import rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
 from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stats
 from training.model.layers import SharedMLP, scaled
+from training.model.rigid_vote import RigidVoteConfig, vote_rigid
 from training.model.set_conv import SetConv
 from training.model.set_upconv import FeaturePropagation, SetUpConv
-from training.model.rigid_vote import RigidVoteConfig, vote_rigid
 from training.model.translation_vote import VoteConfig, vote_translation
 from training.pointops import first_n_sample, farthest_point_sample, gather_points, three_nn_interpolate
 
