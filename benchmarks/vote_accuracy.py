@@ -24,29 +24,29 @@ from benchmarks.named_folders import named_folder
 
 def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed: int = 0,
                 rigid: str = "") -> np.ndarray:
-    """Per pair, the mean static-point error of the voted translation (metres); ``samples`` yield
-    :class:`evaluation.sample.SceneFlowSample`. ``rigid`` "free" or "planar": of the rigid vote's flow
-    ``R p + t − p`` instead (:mod:`training.model.rigid_vote`), fitted on the same level-0 samples."""
-    import torch
+    """Per pair, the mean static-point error of the voted translation (metres), as the ``tvote`` baseline
+    finds it on the pair's random sample; ``samples`` yield :class:`evaluation.sample.SceneFlowSample`.
+    ``rigid`` "free" or "planar": of the rigid vote's flow ``R p + t − p`` instead (the ``rvote`` baseline,
+    :mod:`training.model.rigid_vote`), fitted on the same level-0 samples."""
+    from evaluation.baselines.rigid_vote import RigidVoteBaseline
+    from evaluation.baselines.translation_vote import TranslationVoteBaseline
+    from training.model.rigid_vote import RigidVoteConfig
+    from training.model.translation_vote import VoteConfig
 
-    from training.model.rigid_vote import RigidVoteConfig, vote_rigid
-    from training.model.translation_vote import VoteConfig, farthest_samples, vote_between_samples
-
-    rng = np.random.default_rng(seed)
     cfg = VoteConfig(candidates=candidates)
+    if rigid:
+        method = RigidVoteBaseline(RigidVoteConfig(vote=cfg, planar=rigid == "planar"), sample_points=level_points)
+    else:
+        method = TranslationVoteBaseline(cfg, sample_points=level_points)
+    rng = np.random.default_rng(seed)
     out = []
     for s in samples:
         i1 = rng.choice(len(s.pc1), min(n_points, len(s.pc1)), replace=False)
         i2 = rng.choice(len(s.pc2), min(n_points, len(s.pc2)), replace=False)
-        p1, p2 = (torch.from_numpy(np.ascontiguousarray(x)).float()[None] for x in (s.pc1[i1], s.pc2[i2]))
-        if rigid:
-            R, t = vote_rigid(farthest_samples(p1, level_points), farthest_samples(p2, level_points), RigidVoteConfig(vote=cfg, planar=rigid == "planar"))
-            t = (p1[0] @ R[0].T + t[0] - p1[0]).numpy()
-        else:
-            t = vote_between_samples(p1, p2, level_points, cfg)[0].numpy()
+        flow = method(s.pc1[i1], s.pc2[i2])  # (n, 3) per point, metres
         static = np.ones(len(i1), bool) if s.moving is None else ~np.asarray(s.moving, bool)[i1]
         if static.any():
-            out.append(float(np.linalg.norm(s.flow[i1][static] - (t[static] if t.ndim == 2 else t), axis=1).mean()))
+            out.append(float(np.linalg.norm(s.flow[i1][static] - flow[static], axis=1).mean()))
     return np.asarray(out)
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evaluation.baselines.base import as_cloud
+from evaluation.baselines.translation_vote import sampled_clouds
 from training.model.rigid_vote import RigidVoteConfig
 
 
@@ -27,14 +27,9 @@ class RigidVoteBaseline:
     sample_points: int = 512
 
     def __call__(self, pc1: np.ndarray, pc2: np.ndarray) -> np.ndarray:
-        import torch
-
         from training.model.rigid_vote import vote_rigid
-        from training.model.translation_vote import farthest_samples
 
-        p1, p2 = as_cloud("pc1", pc1), as_cloud("pc2", pc2)
-        a, b = (torch.from_numpy(np.ascontiguousarray(p)[None]).float() for p in (p1, p2))
-        R, t = vote_rigid(farthest_samples(a, self.sample_points), farthest_samples(b, self.sample_points), self.config)
-        pts = a[0].double()
-        flow = pts @ R[0].double().T + t[0].double() - pts
-        return flow.numpy().astype(np.float32)
+        p1, a, b = sampled_clouds(pc1, pc2, self.sample_points)
+        R, t = vote_rigid(a, b, self.config)
+        flow = p1 @ R[0].double().numpy().T + t[0].double().numpy() - p1  # p1: float64 (N, 3)
+        return flow.astype(np.float32)

@@ -6,16 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from _street import walls_and_poles
+from _street import walls_and_poles as _street
 from core.errors import ConfigError
 from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
 from training.model.halflownet_config import HALFlowConfig
 from training.model.translation_vote import VoteConfig, vote_translation
-
-
-def _street(n: int, seed: int = 0) -> torch.Tensor:
-    return walls_and_poles(n, seed)
 
 
 @pytest.mark.parametrize("shift", [(0.0, 0.0, -0.6), (0.05, 0.0, -1.2), (0.3, -0.1, -2.4)])

@@ -85,7 +85,7 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
             nn = nn[..., 0]
             count = inlier.sum(1)
             q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
-            R_new, t_new = fit(a, q, inlier + 1e-12 * (count[:, None] == 0))
+            R_new, t_new = fit(a, q, inlier)  # a round with too few inliers is not taken (ok below)
             ok = count >= cfg.min_inliers
             R = torch.where(ok[:, None, None], R_new, R)
             t = torch.where(ok[:, None], t_new, t)

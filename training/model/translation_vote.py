@@ -150,20 +150,11 @@ def vote_translation(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = Non
     return t.to(xyz1.dtype)
 
 
-
-
-def vote_between_samples(xyz1: Tensor, xyz2: Tensor, sample_points: int, config: VoteConfig | None = None) -> Tensor:
-    """:func:`vote_translation` between farthest-point samples of ``sample_points`` points of each cloud
-    (B, ·, 3), as the net votes between its L0 points; a cloud with no more points than that, or
-    ``sample_points`` 0, is used whole. A LiDAR cloud is densest near the sensor, and on its raw points the
-    count of explained frame-1 points is dominated by the nearest few metres; the sample spreads them over
-    the scene. Serves the ``tvote`` baseline and ``benchmarks.vote_accuracy``."""
-    return vote_translation(farthest_samples(xyz1, sample_points), farthest_samples(xyz2, sample_points), config)
-
-
 def farthest_samples(xyz: Tensor, sample_points: int) -> Tensor:
     """``sample_points`` farthest-point samples of ``xyz`` (B, N, 3), as the net's L0 takes them; the cloud
-    itself when it has no more points than that or ``sample_points`` is 0."""
+    itself when it has no more points than that or ``sample_points`` is 0. The vote baselines vote between
+    such samples: a LiDAR cloud is densest near the sensor, and on its raw points the count of explained
+    frame-1 points is dominated by the nearest few metres; the sample spreads them over the scene."""
     from training.pointops import farthest_point_sample, gather_points
 
     if sample_points <= 0 or xyz.shape[1] <= sample_points:
