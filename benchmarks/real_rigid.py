@@ -18,6 +18,13 @@ dropped as FlowNet3D's split does, and each pair then
 * expresses frame t+1's half in the moved camera's frame; the true flow of frame t's points is the
   camera's motion alone (the paper's eq. 11, ``sf = (R p + t) − p``), every point static.
 
+Two halves of one scan keep that scan's sampling pattern: frame t+1's rings stay where the scanner was at
+frame t, whereas a real second scan's rings, and its density fall-off, move with the sensor. ``rescan``
+removes that difference: each frame is the whole scan re-sampled by a virtual ring scanner at that frame's
+own sensor position (:func:`ring_scan`: the nearest point per elevation × azimuth cell, moved onto the
+cell's centre ray at its range), so both frames have a sensor-fixed pattern, as two consecutive LiDAR
+scans have, and the ground and depth cuts are made in each frame's own camera.
+
 So it checks the camera-motion part of the flow (most of KITTI's points) on real street geometry: the
 range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan. It has no movers; their error
 is measured on the synthetic splits only. Used in docs/learned-flow.md (seventeenth round)::
@@ -60,6 +67,10 @@ class RealRigidConfig:
         pitch_deg: largest pitch of the camera about its x axis, degrees (uniform in ±).
         ground_y: points with camera y at or below this height are ground and dropped, metres (y down).
         max_depth: points with camera z at or beyond this are dropped, metres (FlowNet3D keeps z < 35).
+        rescan: each frame re-sampled from the whole scan by a virtual ring scanner at its own sensor
+            position (sensor-fixed rings and density, as in two real scans) instead of two halves of it.
+        ring_deg: elevation spacing of the virtual scanner's rings, degrees (HDL-64E: about 0.4).
+        azimuth_deg: azimuth step of the virtual scanner, degrees.
     """
 
     scan: str = ""
@@ -73,18 +84,48 @@ class RealRigidConfig:
     pitch_deg: float = 0.5
     ground_y: float = 1.4
     max_depth: float = 35.0
+    rescan: bool = False
+    ring_deg: float = 0.4
+    azimuth_deg: float = 0.2
 
 
-def scan_in_camera(scan: str | Path, calib: str | Path, ground_y: float, max_depth: float) -> np.ndarray:
-    """The scan's non-ground points in front of the camera, rectified camera-0 frame (N, 3) float64 metres."""
-    from pipeline.filters import far_keep, ground_keep
+def scan_points(scan: str | Path, calib: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The whole scan (N, 3) and the scanner's centre (3,) in the rectified camera-0 frame, float64 metres."""
     from pipeline.kitti.calib import read_object_calib
     from pipeline.kitti.velodyne import read_velodyne_bin
 
     velo = read_velodyne_bin(scan)[:, :3].astype(np.float64)
-    cam = transform_points(read_object_calib(calib).velo_to_cam_rect(), velo)
-    keep = (cam[:, 2] > 0.0) & far_keep(cam, max_depth) & ground_keep(cam, ground_y)
-    return cam[keep]
+    T = read_object_calib(calib).velo_to_cam_rect()
+    return transform_points(T, velo), T[:3, 3].astype(np.float64)
+
+
+def split_keep(points: np.ndarray, ground_y: float, max_depth: float) -> np.ndarray:
+    """FlowNet3D's cuts in one frame's camera: in front of it, above the ground, nearer than ``max_depth``."""
+    from pipeline.filters import far_keep, ground_keep
+
+    return (points[:, 2] > 0.0) & far_keep(points, max_depth) & ground_keep(points, ground_y)
+
+
+def ring_scan(points: np.ndarray, sensor: np.ndarray, ring_deg: float, azimuth_deg: float) -> np.ndarray:
+    """What a spinning scanner at ``sensor`` (3,) would return from the surfaces that ``points`` (N, 3)
+    sample, camera axes (x right, y down, z forward), metres: every point's direction from the sensor falls in
+    a cell of ``ring_deg`` elevation (atan2(−y, √(x² + z²))) by ``azimuth_deg`` azimuth (atan2(x, z)); per
+    cell the nearest point is returned (the others are behind it), moved onto the cell's centre ray at its
+    range, so the rings and the density fall-off are the sensor's own. (M, 3), M ≤ N, in cell order."""
+    d = points - sensor
+    rng = np.linalg.norm(d, axis=1)
+    flat = np.hypot(d[:, 0], d[:, 2])
+    e = np.floor(np.degrees(np.arctan2(-d[:, 1], flat)) / ring_deg).astype(np.int64)
+    a = np.floor(np.degrees(np.arctan2(d[:, 0], d[:, 2])) / azimuth_deg).astype(np.int64)
+    order = np.lexsort((rng, a, e))  # by cell, nearest first
+    cell = np.stack([e[order], a[order]], axis=1)
+    first = np.ones(len(order), bool)
+    first[1:] = (cell[1:] != cell[:-1]).any(axis=1)
+    pick = order[first]
+    el = np.radians((e[pick] + 0.5) * ring_deg)
+    az = np.radians((a[pick] + 0.5) * azimuth_deg)
+    ray = np.stack([np.cos(el) * np.sin(az), -np.sin(el), np.cos(el) * np.cos(az)], axis=1)
+    return sensor + rng[pick, None] * ray
 
 
 def camera_motion(rng: np.random.Generator, cfg: RealRigidConfig) -> np.ndarray:
@@ -120,7 +161,8 @@ def build_split(cfg: RealRigidConfig) -> int:
     returns the number of frame-t points per pair."""
     from pipeline.synth.writer import frame_name, save_npz
 
-    points = scan_in_camera(cfg.scan, cfg.calib, cfg.ground_y, cfg.max_depth)
+    whole, sensor = scan_points(cfg.scan, cfg.calib)
+    points = whole[split_keep(whole, cfg.ground_y, cfg.max_depth)]
     if len(points) < 64:
         raise InputError(Path(cfg.scan), f"only {len(points)} non-ground points within {cfg.max_depth} m")
     out = Path(cfg.out)
@@ -134,11 +176,18 @@ def build_split(cfg: RealRigidConfig) -> int:
     motions = kitti_motions(cfg.poses) if cfg.poses else None
     for k in range(cfg.pairs):
         T = camera_motion(rng, cfg) if motions is None else motions[rng.integers(len(motions))]
-        order = rng.permutation(len(points))
-        first, second = points[order[:half]], points[order[half:]]
+        order = rng.permutation(len(points))  # drawn either way: with rescan, the same motions as without
+        if cfg.rescan:  # each frame scanned from its own sensor position, cut in its own camera
+            first, second = (ring_scan(w, sensor, cfg.ring_deg, cfg.azimuth_deg)
+                             for w in (whole, transform_points(T, whole)))
+            first = first[split_keep(first, cfg.ground_y, cfg.max_depth)]
+            second = second[split_keep(second, cfg.ground_y, cfg.max_depth)]
+            half = len(first)
+        else:
+            first, second = points[order[:half]], transform_points(T, points[order[half:]])
         save_npz(part / f"{frame_name(k)}.npz",
                  pos1=axes.from_camera(first).astype(np.float32),
-                 pos2=axes.from_camera(transform_points(T, second)).astype(np.float32),
+                 pos2=axes.from_camera(second).astype(np.float32),
                  gt=axes.from_camera(static_flow(first, T)).astype(np.float32),
                  moving=np.zeros(len(first), dtype=bool))
     part.rename(out)

@@ -82,3 +82,27 @@ def test_a_folder_without_pose_files_is_refused_in_one_line(shared_data: Path, t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no KITTI pose files" in err[0]
     assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
+
+
+def test_rescan_gives_each_frame_its_own_sensors_rings_and_the_same_motions(shared_data: Path, tmp_path: Path):
+    from benchmarks.real_rigid import scan_points
+
+    halves = _cfg(shared_data, tmp_path / "halves", pairs=2)
+    rescan = _cfg(shared_data, tmp_path / "rescan", pairs=2, rescan=True)
+    build_split(halves)
+    build_split(rescan)
+    _, sensor = scan_points(rescan.scan, rescan.calib)
+    for i in range(2):
+        h, r = load_split(str(tmp_path / "halves"), "auto")[i], load_split(str(tmp_path / "rescan"), "auto")[i]
+        a = r.pc1.astype(np.float64)
+        R, t = static_motion(a, r.flow.astype(np.float64))
+        b = h.pc1.astype(np.float64)
+        np.testing.assert_allclose(b @ R.T + t, b + h.flow, atol=1e-3)  # the same camera motion as the halves
+        for cloud in (r.pc1, r.pc2):  # every point on a ring of its own frame's sensor, at a cell's centre
+            d = cloud.astype(np.float64) - sensor  # the reader gives camera axes
+            elev = np.degrees(np.arctan2(-d[:, 1], np.hypot(d[:, 0], d[:, 2]))) / rescan.ring_deg - 0.5
+            assert np.abs(elev - np.round(elev)).max() < 0.01
+        tree = cKDTree(r.pc2)
+        moved, still = tree.query(r.pc1 + r.flow)[0], tree.query(r.pc1)[0]
+        assert np.median(moved) < 0.5 * np.median(still)  # the truth lands on frame t+1's surfaces
+        assert np.mean(moved > 1e-3) > 0.99  # re-scanned: no copies of frame t's points
