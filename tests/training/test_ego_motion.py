@@ -229,6 +229,31 @@ def test_spacing_gate_holds_offsets_within_frame_twos_sample_spacing_and_keeps_l
         assert (stray_err > 0.45).all() if strays_kept else (stray_err < 0.05).all()
 
 
+def test_evidence_gate_keeps_departures_frame_two_supports_and_shuts_the_rest():
+    """``evidence``: frame 2 holds every static point at its rigid target and the car's 40 points 2 m further
+    on. The car's own flow lands on its frame-2 points, nearer than its rigid target (2 m from any): kept.
+    23 static points carry a spurious 0.6 m departure (a static point the net calls moving) that lands
+    where frame 2 has nothing, farther than their rigid target (on a frame-2 point): shut. Without evidence
+    the residual alone passes both."""
+    g = torch.Generator().manual_seed(2)
+    p = (torch.rand(1, 500, 3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor([40.0, 4.0, 40.0])
+    T = torch.tensor(pose_vec_to_mat(np.array([0.02, 0.0, 0.9, 0.0, 0.01, 0.0])))
+    rigid = p @ T[:3, :3].T + T[:3, 3] - p
+    car = torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64)
+    frame2 = p + rigid
+    frame2[:, :40] += car
+    flow = rigid.clone()
+    flow[:, :40] += car
+    strays = torch.arange(50, 500, 20)
+    flow[:, strays] += torch.tensor([0.0, 0.0, -0.6], dtype=torch.float64)
+    for evidence, strays_kept in ((False, True), (True, False)):
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, frame2=frame2,
+                                      evidence=evidence)
+        assert torch.allclose(out[:, :40], flow[:, :40], atol=0.05)  # the car keeps its own flow
+        stray_err = (out[:, strays] - rigid[:, strays]).norm(dim=-1)
+        assert (stray_err > 0.5).all() if strays_kept else (stray_err < 0.01).all(), stray_err.max()
+
+
 def test_a_negative_gate_neighbourhood_or_spacing_is_refused():
     from core.errors import ConfigError
     from training.model.halflownet import HALFlowConfig

@@ -160,3 +160,28 @@ def test_holding_the_l0_ego_head_keeps_a_uniform_pull_of_the_finest_level_out_of
     assert torch.allclose(outs[True, 0.0].flows[0], p @ R_true.T + t_true - p, atol=0.01)
     with pytest.raises(ConfigError, match="ego_l0_hold"):
         _cfg(ego_l0_hold=True, ego_head=True)
+
+
+def test_holding_l0_at_l1s_motion_keeps_the_whole_finest_level_out_of_the_camera_motion():
+    """``ego_l0_hold_from="l1"``: a push from L0's feature-propagation head (before the L0 cost volume) moves
+    the motion the ``"l0"`` hold keeps, but not L1's: held at L1's motion, the L0 level's rigid flow is L1's
+    camera motion at the L0 points, push or not (nineteenth round: the pull was already in that head)."""
+    R_true, t_true = _turn(1.0), torch.tensor([0.0, 0.0, 1.0])
+    pc1 = _street(512)
+    pc2 = pc1[:, torch.randperm(512, generator=torch.Generator().manual_seed(4))] @ R_true.T + t_true
+    outs = {}
+    for source in ("l0", "l1"):
+        for push in (0.0, 0.5):
+            torch.manual_seed(0)
+            net = HALFlowNet(_cfg(rigid_vote=True, zero_flow_heads=True, ego_head=True, l0_cost_volume=True,
+                                  ego_l0_hold=True, ego_l0_hold_from=source)).eval()
+            with torch.no_grad():
+                net.head0.linear.bias.copy_(torch.tensor([0.0, 0.0, push]))
+                outs[source, push] = net(pc1, pc2)
+    moved = (outs["l0", 0.5].rigid_flows[0] - outs["l0", 0.0].rigid_flows[0]).norm(dim=-1).mean()
+    held = (outs["l1", 0.5].rigid_flows[0] - outs["l1", 0.0].rigid_flows[0]).norm(dim=-1).mean()
+    assert moved > 0.4 and held < 1e-4, (moved, held)
+    p = outs["l1", 0.5].points[0]
+    assert torch.allclose(outs["l1", 0.5].rigid_flows[0], p @ R_true.T + t_true - p, atol=0.01)
+    with pytest.raises(ConfigError, match="ego_l0_hold_from"):
+        _cfg(ego_l0_hold=True, ego_head=True, l0_cost_volume=True, ego_l0_hold_from="l2")

@@ -105,7 +105,7 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
                         gate_spacing: float = 0.0, open_k: int = 0,
-                        motion: tuple[Tensor, Tensor] | None = None) -> EgoSplit:
+                        motion: tuple[Tensor, Tensor] | None = None, evidence: bool = False) -> EgoSplit:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual
     (an :class:`EgoSplit`). ``sigma`` (metres) is the residual
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
@@ -130,7 +130,9 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     points instead of its own, ``(1 − m) ⊙ (f̄ − sg(f̄))``, so the gradient a held point passes on is shared
     evenly by its neighbourhood (values unchanged). ``motion`` (R (B, 3, 3), t (B, 3)): hold the points at
     this rigid motion instead of fitting one (no fit, no re-weighting; the scale and the gate as above, from
-    the residuals against it) — a motion fitted elsewhere, e.g. at a coarser level.
+    the residuals against it) — a motion fitted elsewhere, e.g. at a coarser level. ``evidence`` with
+    ``frame2``: the gate is shut wherever the point's own target ``p + f`` is no nearer to a frame-2 point
+    than its rigid target ``T̂ p`` (a departure frame 2 does not support).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -156,6 +158,10 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
         gate = gate_value(r2, s2)[..., None]
+        if evidence and frame2 is not None:
+            d_rigid, _ = knn(moved, frame2, 1)
+            d_own, _ = knn(target, frame2, 1)
+            gate = gate * (d_own < d_rigid).to(gate.dtype)
     out = rigid + gate * (flow - rigid)
     if open_gradient:
         through = flow

@@ -134,7 +134,8 @@ class HALFlowNet(nn.Module):
         x = xyz.float()
         out, R, t, _, gate = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k,
-                                           frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k, motion)
+                                           frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k, motion,
+                                           cfg.ego_gate_evidence)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         gap = ((flow.float() - out.detach()) ** 2).sum(-1)
         return out.to(flow.dtype), rigid.to(flow.dtype), gap, gate, (R, t)
@@ -294,7 +295,7 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid, gap, gate, _ = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
+            flow, rigid, gap, gate, motion = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
             flows.insert(0, flow)
             rigids.insert(0, rigid)
             gaps.insert(0, gap)
@@ -309,7 +310,8 @@ class HALFlowNet(nn.Module):
             flow, _, gap0, _, before = self._ego(p1.xyz[0], flow, p2.xyz[0])
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
-        flow, rigid, gap, gate, _ = self._ego(p1.xyz[0], flow, p2.xyz[0], before if cfg.ego_l0_hold else None)
+        hold = (before if cfg.ego_l0_hold_from == "l0" else motion) if cfg.ego_l0_hold else None
+        flow, rigid, gap, gate, _ = self._ego(p1.xyz[0], flow, p2.xyz[0], hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)

@@ -67,6 +67,9 @@ class HALFlowConfig:
         the flow propagated from L1), and only points whose refined flow departs from it keep their own — so
         the finest matching can move what the gate lets go (movers) but not the camera; false = it refits
         (eighteenth round: on the real scan the L0 cost volume lengthened the camera's translation).
+    ego_l0_hold_from: which motion ``ego_l0_hold`` holds: ``"l0"`` the one fitted just before the L0 cost
+        volume, ``"l1"`` the one L1's ego head fitted (so nothing of the L0 level, neither its feature
+        propagation nor its cost volume, moves the camera; nineteenth round).
     ego_planar: restrict the fitted camera motion to a ground vehicle's with a level camera — a turn about
         the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
         degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
@@ -90,6 +93,11 @@ class HALFlowConfig:
         ego-motion by less than the local spacing of frame 2's sample (what a Chamfer match to the nearest
         sample gives a static point) does not pass the gate; 0 = the scale alone. No gradient; a departure
         (docs/learned-flow.md, twelfth round).
+    ego_gate_evidence: a point keeps its own flow only where frame 2 supports it: its own target ``p + f``
+        must lie nearer to the level's frame-2 points than its rigid target ``T̂ p`` does (nearest-point
+        distances, metres); elsewhere the gate is shut whatever the residual. A departure that explains frame
+        2 no better than the camera's motion (a static point the net calls moving) is not taken. No
+        gradient; a departure (nineteenth round).
     zero_flow_heads: every flow head (the last linear layer of each level's flow) starts at zero weights and
         bias, so the untrained net outputs no flow — with ``translation_vote``, exactly the voted camera
         translation — and learns departures from it; false = PyTorch's default initialisation (the
@@ -126,11 +134,13 @@ class HALFlowConfig:
     ego_iterations: int = 4
     ego_planar: bool = False
     ego_l0_hold: bool = False
+    ego_l0_hold_from: str = "l0"
     ego_open_gradient: bool = False
     zero_flow_heads: bool = False
     ego_open_gradient_k: int = 0
     ego_gate_k: int = 0
     ego_gate_spacing: float = 0.0
+    ego_gate_evidence: bool = False
     eval_norm_stats: str = "running"
 
     def __post_init__(self) -> None:
@@ -155,6 +165,8 @@ class HALFlowConfig:
         if self.ego_l0_hold and not (self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.ego_l0_hold holds the L0 ego head at a motion fitted before the L0 cost volume: "
                               "it needs model.ego_head and model.l0_cost_volume true")
+        if self.ego_l0_hold_from not in ("l0", "l1"):
+            raise ConfigError(f"model.ego_l0_hold_from must be 'l0' or 'l1', got {self.ego_l0_hold_from!r}")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
         if not self.width_scale > 0:
