@@ -152,6 +152,30 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def gate_shares(net, split, cfg) -> list[tuple[float, float]]:
+    """Per pyramid level (finest first), the share of static and of moving points whose ego-head gate is open
+    (> 0.5: the point keeps its own flow, the net calls it moving), over the protocol's sampled frame-1
+    points at that level; nan where the split has no such points or the net no ego head."""
+    import torch
+
+    from evaluation.protocols import prepare_scene
+
+    counts: dict[int, np.ndarray] = {}
+    for sample in split:
+        scene = prepare_scene(sample, cfg, cfg.seeds[0])
+        t = lambda x: torch.tensor(np.asarray(x, dtype=np.float32), device=net.device)[None]  # noqa: E731
+        with torch.no_grad():
+            out = net.net(t(scene.pc1), t(scene.pc2))
+        moving = (np.zeros(len(scene.pc1), bool) if sample.moving is None
+                  else np.asarray(sample.moving, bool)[scene.index1])
+        for lvl, (gate, idx) in enumerate(zip(out.gates, out.indices)):
+            open_, mv = gate[0].cpu().numpy() > 0.5, moving[idx[0].cpu().numpy()]
+            c = counts.setdefault(lvl, np.zeros(4))
+            c += [(open_ & ~mv).sum(), (~mv).sum(), (open_ & mv).sum(), mv.sum()]
+    share = lambda a, b: a / b if b else float("nan")  # noqa: E731
+    return [(share(c[0], c[1]), share(c[2], c[3])) for _, c in sorted(counts.items())]
+
+
 def print_levels(net, split_name: str, split, cfg) -> None:
     """One line per pyramid level of ``net`` (coarsest first): the ego-motion check of that level's flow and
     its EPE3D on static points (metres), both on the points the protocol scores."""
@@ -160,11 +184,14 @@ def print_levels(net, split_name: str, split, cfg) -> None:
 
     levels = [NetMethod(net.checkpoint, name=f"L{lvl}", level=lvl) for lvl in range(len(net.config.output_points))]
     scores = score_splits(levels, {split_name: split}, cfg.n_points, cfg.n_score)[split_name]
+    gates = gate_shares(net, split, cfg)  # empty without an ego head
     for m in reversed(levels):
         e = ego_errors(m, split, cfg)
+        opened = (f", gate open on {gates[m.level][0]:.1%} of static and {gates[m.level][1]:.1%} of moving points"
+                  if m.level < len(gates) else "")
         print(f"{split_name:10s} {net.name:40s} {m.name}: |t| {e['t_net']:.2f} m (true {e['t_true']:.2f}), "
               f"error {e['t_err']:.3f} m, rotation error {e['rot_err_deg']:.3f} deg, static EPE3D "
-              f"{scores[m.name].get('EPE3D_static', float('nan')):.3f}", flush=True)
+              f"{scores[m.name].get('EPE3D_static', float('nan')):.3f}{opened}", flush=True)
 
 
 if __name__ == "__main__":

@@ -59,6 +59,32 @@ def test_per_level_report_has_one_line_per_level_coarsest_first(tmp_path, capsys
     assert all("|t|" in line and "static EPE3D" in line and "nan" not in line for line in lines)
 
 
+def test_gate_shares_count_open_gates_on_static_and_moving_points_per_level():
+    """A stand-in net whose ego gate opens on the points with x < 0 at L0 and on none at L1: the shares are
+    those points' fractions among the static and the moving points the protocol sampled."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from benchmarks.sensor_gap import gate_shares
+    from evaluation.protocols import prepare_scene
+
+    split, _ = _split(400)
+    cfg = ProtocolConfig(protocol="fps", n_points=256, n_score=128, seeds=(0,), warmup=False).validate()
+
+    def net(pc1, pc2):
+        idx = torch.arange(pc1.shape[1])[None]
+        return SimpleNamespace(indices=[idx, idx[:, ::2]], gates=[(pc1[..., 0] < 0).float(), torch.zeros(1, 128)])
+
+    shares = gate_shares(SimpleNamespace(net=net, device="cpu"), split, cfg)
+    scene = prepare_scene(split[0], cfg, 0)
+    left, moving = scene.pc1[:, 0] < 0, split[0].moving[scene.index1]
+    assert moving.any() and (~moving).any()
+    want = ((left & ~moving).sum() / (~moving).sum(), (left & moving).sum() / moving.sum())
+    assert shares[0] == pytest.approx(want)
+    assert shares[1] == (0.0, 0.0)
+
+
 def test_speed_scaled_camera_pairs_keep_the_targets_and_scale_the_motion():
     from types import SimpleNamespace
 
