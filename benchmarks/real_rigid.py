@@ -173,16 +173,17 @@ def build_split(cfg: RealRigidConfig) -> int:
     rng = np.random.default_rng(cfg.seed)
     axes = FORMAT_AXES["flownet3d"]
     half = len(points) // 2
+    if cfg.rescan:  # frame t is scanned from the same sensor position for every pair: once
+        first = ring_scan(whole, sensor, cfg.ring_deg, cfg.azimuth_deg)
+        first = first[split_keep(first, cfg.ground_y, cfg.max_depth)]
+        half = len(first)
     motions = kitti_motions(cfg.poses) if cfg.poses else None
     for k in range(cfg.pairs):
         T = camera_motion(rng, cfg) if motions is None else motions[rng.integers(len(motions))]
         order = rng.permutation(len(points))  # drawn either way: with rescan, the same motions as without
-        if cfg.rescan:  # each frame scanned from its own sensor position, cut in its own camera
-            first, second = (ring_scan(w, sensor, cfg.ring_deg, cfg.azimuth_deg)
-                             for w in (whole, transform_points(T, whole)))
-            first = first[split_keep(first, cfg.ground_y, cfg.max_depth)]
+        if cfg.rescan:  # frame t+1 scanned from its own sensor position, cut in its own camera
+            second = ring_scan(transform_points(T, whole), sensor, cfg.ring_deg, cfg.azimuth_deg)
             second = second[split_keep(second, cfg.ground_y, cfg.max_depth)]
-            half = len(first)
         else:
             first, second = points[order[:half]], transform_points(T, points[order[half:]])
         save_npz(part / f"{frame_name(k)}.npz",

@@ -161,9 +161,9 @@ def gate_shares(net, split, cfg) -> list[tuple[float, float]]:
     from evaluation.protocols import prepare_scene
 
     counts: dict[int, np.ndarray] = {}
+    t = lambda x: torch.tensor(np.asarray(x, dtype=np.float32), device=net.device)[None]  # noqa: E731
     for sample in split:
         scene = prepare_scene(sample, cfg, cfg.seeds[0])
-        t = lambda x: torch.tensor(np.asarray(x, dtype=np.float32), device=net.device)[None]  # noqa: E731
         with torch.no_grad():
             out = net.net(t(scene.pc1), t(scene.pc2))
         moving = (np.zeros(len(scene.pc1), bool) if sample.moving is None

@@ -151,15 +151,15 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             weights = s2 / (s2 + r2)
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():
+        if frame2 is not None and (gate_spacing > 0 or evidence):  # squared distance rigid target → frame 2
+            d_rigid, _ = knn(moved, frame2, 1)
         if gate_spacing > 0 and frame2 is not None:
-            d2, _ = knn(moved, frame2, 1)
-            s2 = torch.maximum(s2, gate_spacing * gate_spacing * d2[..., 0])
+            s2 = torch.maximum(s2, gate_spacing * gate_spacing * d_rigid[..., 0])
         if gate_k > 1:
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
         gate = gate_value(r2, s2)[..., None]
         if evidence and frame2 is not None:
-            d_rigid, _ = knn(moved, frame2, 1)
             d_own, _ = knn(target, frame2, 1)
             gate = gate * (d_own < d_rigid).to(gate.dtype)
     out = rigid + gate * (flow - rigid)
