@@ -21,7 +21,9 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     (``loss.chamfer_truncate``, twelfth round), the Chamfer and Laplacian terms counted along frame 2's surface
     normals (``loss.chamfer_plane``, ``loss.laplacian_plane``, fourteenth round) with the flow's departures
     from the camera's motion kept smooth over frame t (``loss.flow_smooth``, fifteenth round: with these
-    three, longer training no longer makes the net worse); ``overrides`` are dotted
+    three, longer training no longer makes the net worse), and at inference the flow anchored to the
+    camera's measured motion (``model.eval_anchor``: the rigid vote, the finest level held at L1's motion, a
+    departure taken only where frame 2 supports it; twentieth round); ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
@@ -36,6 +38,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
                  "laplacian_plane": 1.0, "flow_smooth": 0.3},
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True, "l0_cost_volume": True, "norm": "layer",
-                  "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True},
+                  "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True,
+                  "eval_anchor": True},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")

@@ -119,7 +119,7 @@ class HALFlowNet(nn.Module):
 
     # ------------------------------------------------------------------ helpers
 
-    def _ego(self, xyz: Tensor, flow: Tensor, frame2: Tensor,
+    def _ego(self, cfg: HALFlowConfig, xyz: Tensor, flow: Tensor, frame2: Tensor,
              motion: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None,
                                                                  tuple[Tensor, Tensor] | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
@@ -127,8 +127,8 @@ class HALFlowNet(nn.Module):
         and the output, differentiable in the former (:mod:`training.losses.gate_pull`), and the gate
         ``m`` (B, n) in [0, 1] (0: held at the rigid flow); None without the head. ``frame2``: the level's
         frame-2 points (for ``ego_gate_spacing``); ``motion``: hold at this (R, t) instead of fitting one. Last,
-        the fitted (or given) motion (R (B, 3, 3), t (B, 3)), None without the head."""
-        cfg = self.config
+        the fitted (or given) motion (R (B, 3, 3), t (B, 3)), None without the head; ``cfg``: the pass's
+        switches (:meth:`HALFlowConfig.at_inference` in eval mode)."""
         if not cfg.ego_head:
             return flow, None, None, None, None
         x = xyz.float()
@@ -234,7 +234,7 @@ class HALFlowNet(nn.Module):
             self._check_sampling(sampling, pc1, pc2)
         given1: list[Tensor | None] = [None] * 5 if sampling is None else list(sampling.pc1)
         given2: list[Tensor | None] = [None] * 4 if sampling is None else list(sampling.pc2)
-        cfg = self.config
+        cfg = self.config if self.training else self.config.at_inference()
         centre = pc1.mean(dim=1, keepdim=True) if cfg.center_input else pc1.new_zeros(pc1.shape[0], 1, 3)
         x1, x2 = pc1 - centre, pc2 - centre
 
@@ -284,7 +284,7 @@ class HALFlowNet(nn.Module):
             coarse = coarse + self.coarse_translation(p1.xyz[2], p1.feat[2], p2.xyz[2], p2.feat[2])[:, None]
         cost = self.cost3(xyz1_3 + coarse, feat1_3, p2.xyz[3], p2.feat[3])
         hidden = self.refine3(coarse, feat1_3, cost, up)
-        flow, rigid, gap, gate, _ = self._ego(xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
+        flow, rigid, gap, gate, _ = self._ego(cfg, xyz1_3, coarse + self.head3(hidden), p2.xyz[3])
         flows, rigids, gaps, gates = [flow], [rigid], [gap], [gate]
 
         # L2, L1: upsample features and flow, warp, cost volume, residual refinement.
@@ -295,7 +295,7 @@ class HALFlowNet(nn.Module):
             coarse = three_nn_interpolate(xyz, p1.xyz[lvl + 1], flow, backend=cfg.knn_backend)
             cost = cv(xyz + coarse, feat, p2.xyz[lvl], p2.feat[lvl])
             hidden = refiner(coarse, feat, cost, up)
-            flow, rigid, gap, gate, motion = self._ego(xyz, coarse + head(hidden), p2.xyz[lvl])
+            flow, rigid, gap, gate, motion = self._ego(cfg, xyz, coarse + head(hidden), p2.xyz[lvl])
             flows.insert(0, flow)
             rigids.insert(0, rigid)
             gaps.insert(0, gap)
@@ -307,11 +307,11 @@ class HALFlowNet(nn.Module):
         flow = coarse + self.head0(hidden)
         gap0, before = None, None
         if cfg.l0_cost_volume:  # warp by that flow, match against frame 2's L0 points, residual refinement
-            flow, _, gap0, _, before = self._ego(p1.xyz[0], flow, p2.xyz[0])
+            flow, _, gap0, _, before = self._ego(cfg, p1.xyz[0], flow, p2.xyz[0])
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
         hold = (before if cfg.ego_l0_hold_from == "l0" else motion) if cfg.ego_l0_hold else None
-        flow, rigid, gap, gate, _ = self._ego(p1.xyz[0], flow, p2.xyz[0], hold)
+        flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, p2.xyz[0], hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)

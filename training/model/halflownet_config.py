@@ -4,7 +4,7 @@ Keeps the :class:`~training.model.contract.FlowNetConfig` contract."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from core.errors import ConfigError
@@ -106,6 +106,13 @@ class HALFlowConfig:
         training, the paper's form) or the statistics of the ``"input"`` itself — the clouds of the call,
         so call it with one scene at a time (test-time normalisation, AdaBN): the net was trained on
         camera clouds, and a LiDAR test cloud's features have other statistics. Training is unchanged.
+    eval_anchor: at inference (eval mode: validation, evaluation, the refinement's start) anchor the flow to
+        the camera's measured motion — turn on ``rigid_vote``, ``ego_l0_hold`` with ``ego_l0_hold_from`` =
+        ``"l1"`` and ``ego_gate_evidence`` for the pass — so the finest level moves only the points frame 2
+        shows moving, with the camera's motion measured (the vote) and fitted at L1, never pulled by the L0
+        matching; training steps run with the switches as set (trained with the hold, the movers do not
+        learn stably; twentieth round). Needs ``translation_vote``, ``ego_head`` and ``l0_cost_volume``. A
+        departure; false = inference as trained.
     """
 
     n_points: int = 8192
@@ -142,6 +149,7 @@ class HALFlowConfig:
     ego_gate_spacing: float = 0.0
     ego_gate_evidence: bool = False
     eval_norm_stats: str = "running"
+    eval_anchor: bool = False
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -169,6 +177,9 @@ class HALFlowConfig:
             raise ConfigError(f"model.ego_l0_hold_from must be 'l0' or 'l1', got {self.ego_l0_hold_from!r}")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
+        if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
+            raise ConfigError("model.eval_anchor turns on the rigid vote and the L0 hold at inference: it needs "
+                              "model.translation_vote, model.ego_head and model.l0_cost_volume true")
         if not self.width_scale > 0:
             raise ConfigError(f"width_scale must be > 0, got {self.width_scale}")
         if self.sampling not in ("fps", "random"):
@@ -199,6 +210,12 @@ class HALFlowConfig:
         if "batch_norm" in fields and "norm" not in fields:
             fields["norm"] = "batch" if fields.pop("batch_norm") else "none"
         return cls(**fields)
+
+    def at_inference(self) -> "HALFlowConfig":
+        """The switches an inference pass runs with: this config, with ``eval_anchor``'s three turned on."""
+        if not self.eval_anchor:
+            return self
+        return replace(self, rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="l1", ego_gate_evidence=True)
 
     @property
     def output_points(self) -> tuple[int, ...]:

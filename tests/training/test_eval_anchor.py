@@ -1,0 +1,70 @@
+"""HALFlowConfig.eval_anchor: the rigid vote, the finest level held at L1's motion and the evidence gate at
+inference only (docs/learned-flow.md, twentieth round)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from _street import walls_and_poles
+from core.errors import ConfigError
+from training.config import level_points_for
+from training.model.halflownet import HALFlowNet
+from training.model.halflownet_config import HALFlowConfig
+
+ANCHORED = dict(rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="l1", ego_gate_evidence=True)
+
+
+def _cfg(**kw) -> HALFlowConfig:
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True)
+    return HALFlowConfig(n_points=512, level_points=level_points_for(512), width_scale=0.25, feature_dim=0,
+                         norm="layer", **{**parts, **kw})
+
+
+def _pair() -> tuple[torch.Tensor, torch.Tensor]:
+    """A street turned by 2° and moved 1 m forward, frame 2 re-ordered."""
+    a = math.radians(2.0)
+    R = torch.tensor([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    pc1 = walls_and_poles(512, 0, facade_half_width_m=10.0)
+    pc2 = pc1[:, torch.randperm(512, generator=torch.Generator().manual_seed(1))] @ R.T + torch.tensor([0.0, 0.0, 1.0])
+    return pc1, pc2
+
+
+def _flows(net: HALFlowNet, pc1: torch.Tensor, pc2: torch.Tensor) -> list[torch.Tensor]:
+    with torch.no_grad():
+        return net(pc1, pc2).flows
+
+
+def test_inference_runs_the_anchored_switches_and_training_steps_run_the_config_as_set():
+    pc1, pc2 = _pair()
+    torch.manual_seed(0)
+    anchored = HALFlowNet(_cfg(eval_anchor=True))
+    with torch.no_grad():  # a finest-level push, so the hold and the evidence gate have something to change
+        anchored.head0.linear.bias.copy_(torch.tensor([0.0, 0.0, 0.4]))
+    plain = HALFlowNet(_cfg())
+    switched = HALFlowNet(_cfg(**ANCHORED))
+    plain.load_state_dict(anchored.state_dict())
+    switched.load_state_dict(anchored.state_dict())
+
+    for a, b in zip(_flows(anchored.eval(), pc1, pc2), _flows(switched.eval(), pc1, pc2)):
+        assert torch.allclose(a, b, atol=1e-6)
+    for a, b in zip(_flows(anchored.train(), pc1, pc2), _flows(plain.train(), pc1, pc2)):
+        assert torch.allclose(a, b, atol=1e-6)
+    # and the two passes differ: the anchor changes what inference returns
+    gap = (_flows(anchored.eval(), pc1, pc2)[0] - _flows(plain.eval(), pc1, pc2)[0]).norm(dim=-1).mean()
+    assert gap > 0.05, gap
+    assert anchored.config.rigid_vote is False  # the stored config is not changed by an inference pass
+
+
+def test_the_config_names_its_inference_switches_and_refuses_an_anchor_without_its_parts():
+    cfg = _cfg(eval_anchor=True)
+    inf = cfg.at_inference()
+    assert {k: getattr(inf, k) for k in ANCHORED} == ANCHORED
+    assert dataclasses.replace(inf, **{k: getattr(cfg, k) for k in ANCHORED}) == cfg
+    assert _cfg().at_inference() == _cfg()
+    for off in ("translation_vote", "ego_head", "l0_cost_volume"):
+        with pytest.raises(ConfigError, match="eval_anchor"):
+            _cfg(eval_anchor=True, **{off: False})
