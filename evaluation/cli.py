@@ -71,6 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
                         "their flow: '<net> + view pruning + rigid polish + refinement'")
+    r.add_argument("--eval-anchor", default="as-trained", choices=("as-trained", "on", "off"),
+                   help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
+                        "held at L1's camera motion, the evidence gate): as trained, or forced on / off, so a net "
+                        "can be scored both ways; a forced setting that differs is named in the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -182,7 +186,8 @@ def _run(args) -> int:
         split = dataclasses.replace(split, entries=[e for e in split.entries if e.name in keep])
     scenes = split
     first = scenes[0]
-    nets = [NetMethod(c, device=args.device) for c in args.checkpoint]
+    anchor = {"as-trained": None, "on": True, "off": False}[args.eval_anchor]
+    nets = [NetMethod(c, device=args.device, eval_anchor=anchor) for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

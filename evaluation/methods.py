@@ -14,7 +14,7 @@ rows) for one trained with ``sampling="random"``; elsewhere the scored flow is i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
@@ -71,11 +71,14 @@ class NetMethod:
     are the per-point features when the run trained with ``config["data"]["colour_features"]`` and the
     split has them, else zeros (:attr:`uses_colour`). ``level`` picks the pyramid level whose flow is
     returned (0, the finest, for every score; a coarser one, interpolated onto the input points, for
-    diagnostics such as ``benchmarks.sensor_gap --per-level``).
+    diagnostics such as ``benchmarks.sensor_gap --per-level``). ``eval_anchor`` (true / false) overrides the
+    checkpoint's inference-only switch ``model.eval_anchor`` (:class:`~training.model.halflownet_config.HALFlowConfig`;
+    None: as trained), so one trained net can be scored both ways; an override that changes it is named in
+    the row (", anchored" / ", not anchored").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
-                 level: int = 0) -> None:
+                 level: int = 0, eval_anchor: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -85,6 +88,15 @@ class NetMethod:
         path = Path(checkpoint)
         ckpt = load_checkpoint(path, kind="flow")
         self.model_name, self.config, net = restore_flow_net(ckpt, path)
+        suffix = ""
+        if eval_anchor is not None and eval_anchor != getattr(self.config, "eval_anchor", None):
+            if not hasattr(self.config, "eval_anchor"):
+                raise ConfigError(f"{path}: the {self.model_name} net has no inference anchor (eval_anchor)")
+            try:
+                self.config = net.config = replace(self.config, eval_anchor=bool(eval_anchor))
+            except ConfigError as e:
+                raise ConfigError(f"{path}: {e}") from None
+            suffix = ", anchored" if eval_anchor else ", not anchored"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)
@@ -92,7 +104,7 @@ class NetMethod:
         self.run_config = cfg  # the run's whole config (evaluation.scenes reads what it trained on)
         self.step = int(ckpt.get("step", 0))
         self.checkpoint = path
-        self.name = name or f"ours ({path.parent.name}, step {self.step})"
+        self.name = name or f"ours ({path.parent.name}, step {self.step}{suffix})"
         self.level = int(level)
         if not 0 <= self.level < len(self.config.output_points):
             raise ValueError(f"{path}: level {level} is not one of the net's levels 0..{len(self.config.output_points) - 1}")

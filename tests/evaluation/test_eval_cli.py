@@ -179,6 +179,7 @@ def test_bad_options_and_checkpoints(world: Path, checkpoint: Path, tmp_path: Pa
         (["--checkpoint", str(checkpoint), "--baselines", "", "--n-points", "32", "--n-score", "16"],
          "needs at least 64 points"),
         (["--checkpoint", str(tmp_path / "missing.pt")], "checkpoint not found"),
+        (["--checkpoint", str(checkpoint), "--eval-anchor", "on"], f"{checkpoint}: model.eval_anchor"),
     ]
     for extra, message in cases:
         assert main(["run", "--split", split, "--out", o, "--no-progress", *extra]) == 2, extra
@@ -207,6 +208,26 @@ def test_two_checkpoints_of_same_named_runs_get_distinct_names(world: Path, chec
     assert rows[0]["EPE3D"] != rows[1]["EPE3D"]  # different weights, scored separately
     assert rows[0]["n_scenes"] == 1 and rows[0]["n_seeds"] == 2 and "EPE3D_std" in rows[0]
     assert "protocol full: scored every input point of pc1" in capsys.readouterr().out
+
+
+def test_the_inference_anchor_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
+    """``--eval-anchor``: one trained net scored as trained, anchored and not anchored; only a forced setting
+    that differs from the checkpoint's is named, and the anchored row is a different flow."""
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    nets = {a: NetMethod(path, device="cpu", eval_anchor=a) for a in (None, True, False)}
+    assert [nets[a].name for a in (None, True, False)] == ["ours (run, step 3)", "ours (run, step 3, anchored)",
+                                                           "ours (run, step 3)"]
+    assert nets[True].net.config.eval_anchor and not nets[None].net.config.eval_anchor
+    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
+    plain, anchored = nets[None](scene.pc1, scene.pc2), nets[True](scene.pc1, scene.pc2)
+    np.testing.assert_array_equal(plain, nets[False](scene.pc1, scene.pc2))
+    assert np.abs(plain - anchored).max() > 1e-4
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--eval-anchor", "on", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, anchored)"]
 
 
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:
