@@ -103,7 +103,7 @@ def _run(args) -> int:
     _say(f"3/5 scene-flow training: {args.steps} steps, {args.n_points} points, width x{args.width_scale}, CPU, "
          "ego-motion head and term, L0 cost volume, layer norm, LiDAR-like and camera-speed augmentation, translation vote, "
          "straight-through gate with its pull, zero flow heads, Chamfer truncated at 2 m, "
-         "point-to-plane Chamfer and Laplacian, flow smoothness")
+         "point-to-plane Chamfer and Laplacian, flow smoothness; at inference anchored to the rigid vote")
     threads = torch.get_num_threads()
     tcfg = demo_train_config(str(summary.cache_root), str(out / f"flow_run_{args.depth}"), args.steps, args.n_points,
                              args.width_scale, args.seed)

@@ -1,0 +1,85 @@
+"""Which parts of the inference anchor matter: trained nets scored with each named subset of its switches.
+
+``model.eval_anchor`` (:class:`training.model.halflownet_config.HALFlowConfig`) turns three no-learning
+switches on at inference: the rigid vote, the finest level held at L1's camera motion, the evidence gate.
+This tool restores each checkpoint, sets one subset of them on the restored net (the weights are untouched:
+none of the three has any) and scores it on every split under the fps protocol, so the parts can be compared
+on the same points. Used for docs/learned-flow.md (twentieth round)::
+
+    python -m benchmarks.anchor_parts --checkpoint runs/pre-w0-s0/step_000500.pt \\
+        --split own=w0/world/sceneflow/flownet3d --split realr=w/real_kitti_rescan --parts none,rv,rvh,all
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+
+from benchmarks.named_folders import named_folder
+from core.errors import ConfigError, run_cli
+
+_HOLD = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
+PARTS: dict[str, dict[str, object]] = {
+    "none": {"rigid_vote": False, "ego_l0_hold": False, "ego_gate_evidence": False},
+    "he": {"rigid_vote": False, **_HOLD, "ego_gate_evidence": True},
+    "rv": {"rigid_vote": True, "ego_l0_hold": False, "ego_gate_evidence": False},
+    "rve": {"rigid_vote": True, "ego_l0_hold": False, "ego_gate_evidence": True},
+    "rvh": {"rigid_vote": True, **_HOLD, "ego_gate_evidence": False},
+    "all": {"rigid_vote": True, **_HOLD, "ego_gate_evidence": True},
+}
+"""Named subsets: ``rv`` the rigid vote, ``h`` the hold at L1's motion, ``e`` the evidence gate; ``all`` is what
+``eval_anchor`` turns on, ``none`` the net as trained without any of them."""
+
+
+def with_parts(method, part: str):
+    """``method`` (a :class:`evaluation.methods.NetMethod`) set to run with the switches of ``PARTS[part]``
+    at inference (its own anchor off), renamed ``<name> [<part>]``."""
+    if part not in PARTS:
+        raise ConfigError(f"unknown part {part!r} (choose from {', '.join(PARTS)})")
+    try:
+        method.config = method.net.config = replace(method.net.config, eval_anchor=False, **PARTS[part])
+    except (ConfigError, TypeError) as e:
+        raise ConfigError(f"{method.checkpoint}: cannot run the anchor's parts: {e}") from None
+    method.name = f"{method.name} [{part}]"
+    return method
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="anchor_parts", description=__doc__.split("\n\n")[0])
+    p.add_argument("--checkpoint", action="append", default=[], required=True, help="monoflow-train checkpoint")
+    p.add_argument("--split", action="append", default=[], required=True, type=named_folder,
+                   help="NAME=FOLDER of a scene-flow test split")
+    p.add_argument("--parts", default="none,all", help=f"comma list of {', '.join(PARTS)}")
+    p.add_argument("--n-points", type=int, default=2048, help="points sampled per cloud")
+    p.add_argument("--n-score", type=int, default=512, help="scored farthest-point samples (the net's level 0)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    args = p.parse_args(argv)
+
+    def run(_argv=None) -> int:
+        import torch
+
+        from benchmarks.learning_curve import score_splits
+        from evaluation.methods import NetMethod
+        from evaluation.readers import load_split
+
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        parts = [t.strip() for t in args.parts.split(",") if t.strip()]
+        methods = [with_parts(NetMethod(c, device="cpu", name=str(c)), part) for c in args.checkpoint for part in parts]
+        splits = {name: load_split(folder, "auto") for name, folder in args.split}
+        scores = score_splits(methods, splits, args.n_points, args.n_score)
+        print("| net [parts] | " + " | ".join(f"{s} (overall / static / moving)" for s in splits) + " |")
+        print("|---|" + "---|" * len(splits))
+        for m in methods:
+            cells = []
+            for s in splits:
+                row = scores[s][m.name]
+                cells.append(" / ".join(f"{row[k]:.3f}" for k in ("EPE3D", "EPE3D_static", "EPE3D_moving") if k in row))
+            print(f"| {m.name} | " + " | ".join(cells) + " |")
+        return 0
+
+    return run_cli(run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,60 @@
+"""benchmarks/anchor_parts.py: a trained net scored with each subset of the inference anchor's switches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.anchor_parts import PARTS, main, with_parts
+from core.errors import ConfigError
+from evaluation.methods import NetMethod
+from testkit.flow_checkpoint import tiny_flow_checkpoint
+from testkit.rigid_scene import structured_scene
+
+ANCHORABLE = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer")
+
+
+def _split(folder, n: int = 400) -> None:
+    """Two FlowNet3D-layout scenes of the structured street moved 1 m forward (LiDAR axes: x forward)."""
+    folder.mkdir(parents=True)
+    for i in range(2):
+        cam = structured_scene(np.random.default_rng(i), n)  # camera axes
+        lidar = np.stack([cam[:, 2], -cam[:, 0], -cam[:, 1]], 1).astype(np.float32)
+        flow = np.tile(np.float32([-1.0, 0.0, 0.0]), (n, 1))
+        np.savez(folder / f"{i:06d}.npz", pos1=lidar, pos2=lidar + flow, gt=flow)
+
+
+def test_all_parts_is_the_anchor_and_none_is_the_net_without_it(tmp_path):
+    path = tiny_flow_checkpoint(tmp_path / "run" / "net.pt", **ANCHORABLE)
+    rng = np.random.default_rng(0)
+    pc1 = structured_scene(rng, 300).astype(np.float32)
+    a = np.radians(3.0)  # a turn about y, which the rigid vote measures and the translation vote does not
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    pc2 = (pc1 @ R.T + [0.1, 0.0, 1.0]).astype(np.float32)
+    flows = {p: with_parts(NetMethod(path, device="cpu"), p)(pc1, pc2) for p in PARTS}
+    np.testing.assert_array_equal(flows["all"], NetMethod(path, device="cpu", eval_anchor=True)(pc1, pc2))
+    np.testing.assert_array_equal(flows["none"], NetMethod(path, device="cpu", eval_anchor=False)(pc1, pc2))
+    assert np.abs(flows["rv"] - flows["none"]).max() > 1e-4  # the parts change the flow
+    assert with_parts(NetMethod(path, device="cpu"), "rvh").name.endswith("[rvh]")
+
+
+def test_unknown_parts_and_nets_without_the_anchors_parts_are_one_line(tmp_path, capsys):
+    paper = tiny_flow_checkpoint(tmp_path / "paper.pt")
+    with pytest.raises(ConfigError, match="unknown part"):
+        with_parts(NetMethod(paper, device="cpu"), "x")
+    _split(tmp_path / "split")
+    assert main(["--checkpoint", str(paper), "--split", f"s={tmp_path / 'split'}", "--parts", "rv"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {paper}: cannot run the anchor's parts") and len(err.strip().splitlines()) == 1
+
+
+def test_the_table_has_a_row_per_net_and_part(tmp_path, capsys):
+    path = tiny_flow_checkpoint(tmp_path / "net.pt", **ANCHORABLE)
+    _split(tmp_path / "split")
+    assert main(["--checkpoint", str(path), "--split", f"s={tmp_path / 'split'}", "--parts", "none,all",
+                 "--n-points", "256", "--n-score", "128"]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith(f"| {path}")]
+    assert [r.split("]")[0].split("[")[1] for r in rows] == ["none", "all"]
+    for r in rows:
+        epe = float(r.split("|")[2].split("/")[0])
+        assert np.isfinite(epe) and epe >= 0
