@@ -1,5 +1,5 @@
-"""Benchmark: evaluation time per scene on CPU — the scene-flow net (paper size at 8192 points, and the
-demo's size) and the ICP / FGR baselines — through the real protocol (``run_protocol``: same sampled
+"""Benchmark: evaluation time per scene on CPU — the scene-flow net (paper size at 8192 points, the demo's
+size, and the demo preset without and with its inference anchor) and the ICP / FGR baselines — through the real protocol (``run_protocol``: same sampled
 points for every method, one untimed warm-up call, then the mean over scenes).
 
 The scenes are a synthetic world's scene-flow test split (generated into a temporary folder unless
@@ -27,7 +27,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _checkpoint(folder: Path, name: str, n_points: int, width_scale: float) -> Path:
+def _checkpoint(folder: Path, name: str, n_points: int, width_scale: float, preset: bool = False) -> Path:
+    """An untrained net saved as the trainer saves one: the paper's form at ``n_points`` and ``width_scale``,
+    or with ``preset`` the demo preset's (``training/presets.py``: ego head, votes, inference anchor)."""
     from dataclasses import asdict
 
     import torch
@@ -35,11 +37,16 @@ def _checkpoint(folder: Path, name: str, n_points: int, width_scale: float) -> P
     from training.config import DataConfig, TrainConfig
     from training.model.halflownet_config import HALFlowConfig, level_points_for
     from training.model.registry import construct_model
+    from training.presets import demo_train_config
     from training.runtime.checkpoints import save_checkpoint
 
     torch.manual_seed(0)
-    model = HALFlowConfig(n_points=n_points, level_points=level_points_for(n_points), width_scale=width_scale)
-    cfg = TrainConfig(model=model, data=DataConfig(n_points=n_points))
+    if preset:
+        cfg = demo_train_config("", str(folder / name), n_points=n_points, width_scale=width_scale)
+        model = cfg.model
+    else:
+        model = HALFlowConfig(n_points=n_points, level_points=level_points_for(n_points), width_scale=width_scale)
+        cfg = TrainConfig(model=model, data=DataConfig(n_points=n_points))
     net = construct_model(cfg.model_name, model)
     return save_checkpoint(folder / name / "latest.pt", {"kind": "flow", "model": net.state_dict(), "step": 0,
                                                          "config": asdict(cfg)})
@@ -98,7 +105,10 @@ def main(argv: list[str] | None = None) -> int:
             paper = NetMethod(_checkpoint(tmp, "paper", 8192, 1.0), device="cpu", name="net, paper size (width 1)")
             cases.append(("8192 / 2048", [paper], ProtocolConfig(n_points=8192, n_score=2048)))
         demo = NetMethod(_checkpoint(tmp, "demo", 2048, 0.5), device="cpu", name="net, demo size (width 0.5)")
-        cases.append(("2048 / 512", [demo], ProtocolConfig(n_points=2048, n_score=512)))
+        preset = _checkpoint(tmp, "preset", 2048, 0.5, preset=True)  # the inference anchor's cost, both ways
+        anchored = [NetMethod(preset, device="cpu", eval_anchor=a, name=f"net, demo preset{' anchored' if a else ''}")
+                    for a in (False, True)]
+        cases.append(("2048 / 512", [demo, *anchored], ProtocolConfig(n_points=2048, n_score=512)))
         baselines = [make_baseline(b) for b in ("icp-p2p", "icp-p2l", "fgr")]
         cases.append(("8192 / 2048", baselines, ProtocolConfig(n_points=8192, n_score=2048)))
         print("\n### Evaluation time per scene, CPU (fps protocol; mean over scenes after one warm-up call)\n")
