@@ -1,13 +1,14 @@
 """Which parts of the inference anchor matter: trained nets scored with each named subset of its switches.
 
 ``model.eval_anchor`` (:class:`training.model.halflownet_config.HALFlowConfig`) turns three no-learning
-switches on at inference: the rigid vote, the finest level held at L1's camera motion, the evidence gate.
+switches on at inference: the rigid vote, the finest level held at the vote's camera motion, the evidence
+gate; the parts also include the hold at L1's motion (the nineteenth round's).
 This tool restores each checkpoint, sets one subset of them on the restored net (the weights are untouched:
 none of the three has any) and scores it on every split under the fps protocol, so the parts can be compared
 on the same points. Used for docs/learned-flow.md (twentieth round)::
 
     python -m benchmarks.anchor_parts --checkpoint runs/pre-w0-s0/step_000500.pt \\
-        --split own=w0/world/sceneflow/flownet3d --split realr=w/real_kitti_rescan --parts none,rv,rvh,all
+        --split own=w0/world/sceneflow/flownet3d --split realr=w/real_kitti_rescan --parts none,rv,rvhe,all
 """
 
 from __future__ import annotations
@@ -18,17 +19,21 @@ from dataclasses import replace
 from benchmarks.named_folders import named_folder
 from core.errors import ConfigError, run_cli
 
-_HOLD = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
+_L1 = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
+_VOTE = {"ego_l0_hold": True, "ego_l0_hold_from": "vote"}
+_OFF = {"rigid_vote": False, "ego_l0_hold": False, "ego_gate_evidence": False}
 PARTS: dict[str, dict[str, object]] = {
-    "none": {"rigid_vote": False, "ego_l0_hold": False, "ego_gate_evidence": False},
-    "he": {"rigid_vote": False, **_HOLD, "ego_gate_evidence": True},
-    "rv": {"rigid_vote": True, "ego_l0_hold": False, "ego_gate_evidence": False},
-    "rve": {"rigid_vote": True, "ego_l0_hold": False, "ego_gate_evidence": True},
-    "rvh": {"rigid_vote": True, **_HOLD, "ego_gate_evidence": False},
-    "all": {"rigid_vote": True, **_HOLD, "ego_gate_evidence": True},
+    "none": _OFF,
+    "he": {**_OFF, **_L1, "ego_gate_evidence": True},
+    "rv": {**_OFF, "rigid_vote": True},
+    "rve": {**_OFF, "rigid_vote": True, "ego_gate_evidence": True},
+    "rvh": {**_OFF, "rigid_vote": True, **_L1},
+    "rvhe": {"rigid_vote": True, **_L1, "ego_gate_evidence": True},
+    "rvhv": {**_OFF, "rigid_vote": True, **_VOTE},
+    "all": {"rigid_vote": True, **_VOTE, "ego_gate_evidence": True},
 }
-"""Named subsets: ``rv`` the rigid vote, ``h`` the hold at L1's motion, ``e`` the evidence gate; ``all`` is what
-``eval_anchor`` turns on, ``none`` the net as trained without any of them."""
+"""Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
+``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

@@ -1,5 +1,5 @@
-"""HALFlowConfig.eval_anchor: the rigid vote, the finest level held at L1's motion and the evidence gate at
-inference only (docs/learned-flow.md, twentieth round)."""
+"""HALFlowConfig.eval_anchor: the rigid vote, the finest level held at the vote's motion and the evidence gate
+at inference only; ``ego_l0_hold_from="vote"`` (docs/learned-flow.md, twentieth round)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
 from training.model.halflownet_config import HALFlowConfig
 
-ANCHORED = dict(rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="l1", ego_gate_evidence=True)
+ANCHORED = dict(rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="vote", ego_gate_evidence=True)
 
 
 def _cfg(**kw) -> HALFlowConfig:

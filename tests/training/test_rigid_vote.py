@@ -185,3 +185,27 @@ def test_holding_l0_at_l1s_motion_keeps_the_whole_finest_level_out_of_the_camera
     assert torch.allclose(outs["l1", 0.5].rigid_flows[0], p @ R_true.T + t_true - p, atol=0.01)
     with pytest.raises(ConfigError, match="ego_l0_hold_from"):
         _cfg(ego_l0_hold=True, ego_head=True, l0_cost_volume=True, ego_l0_hold_from="l2")
+
+
+def test_holding_l0_at_the_votes_motion_keeps_every_level_out_of_the_camera_motion():
+    """``ego_l0_hold_from="vote"``: pushes from the L1 and the L0 flow heads move L1's fitted motion, but the
+    finest level's rigid flow stays the vote's (frame 2 is pre-aligned by it, so it is the identity inside the
+    net), and that is the true motion here (twentieth round)."""
+    R_true, t_true = _turn(1.0), torch.tensor([0.0, 0.0, 1.0])
+    pc1 = _street(512)
+    pc2 = pc1[:, torch.randperm(512, generator=torch.Generator().manual_seed(4))] @ R_true.T + t_true
+    outs = {}
+    for push in (0.0, 0.5):
+        torch.manual_seed(0)
+        net = HALFlowNet(_cfg(rigid_vote=True, zero_flow_heads=True, ego_head=True, l0_cost_volume=True,
+                              ego_l0_hold=True, ego_l0_hold_from="vote")).eval()
+        with torch.no_grad():
+            net.head0.linear.bias.copy_(torch.tensor([0.0, 0.0, push]))
+            net.head1.linear.bias.copy_(torch.tensor([push, 0.0, 0.0]))
+            outs[push] = net(pc1, pc2)
+    assert (outs[0.5].rigid_flows[1] - outs[0.0].rigid_flows[1]).norm(dim=-1).mean() > 0.4  # L1's fit moved
+    assert (outs[0.5].rigid_flows[0] - outs[0.0].rigid_flows[0]).norm(dim=-1).max() < 1e-4  # L0's did not
+    p = outs[0.5].points[0]
+    assert torch.allclose(outs[0.5].rigid_flows[0], p @ R_true.T + t_true - p, atol=0.01)
+    with pytest.raises(ConfigError, match="needs model.translation_vote"):
+        HALFlowConfig(ego_head=True, l0_cost_volume=True, ego_l0_hold=True, ego_l0_hold_from="vote")

@@ -69,7 +69,8 @@ class HALFlowConfig:
         (eighteenth round: on the real scan the L0 cost volume lengthened the camera's translation).
     ego_l0_hold_from: which motion ``ego_l0_hold`` holds: ``"l0"`` the one fitted just before the L0 cost
         volume, ``"l1"`` the one L1's ego head fitted (so nothing of the L0 level, neither its feature
-        propagation nor its cost volume, moves the camera; nineteenth round).
+        propagation nor its cost volume, moves the camera; nineteenth round), ``"vote"`` the pre-alignment's
+        own motion (the translation or rigid vote: no level of the net moves the camera; twentieth round).
     ego_planar: restrict the fitted camera motion to a ground vehicle's with a level camera — a turn about
         the camera's y axis and a translation in its x–z plane (no pitch, roll or vertical motion), 3 of 6
         degrees of freedom (:func:`~training.model.ego_motion.weighted_planar_fit`). On LiDAR clouds, a
@@ -108,11 +109,11 @@ class HALFlowConfig:
         camera clouds, and a LiDAR test cloud's features have other statistics. Training is unchanged.
     eval_anchor: at inference (eval mode: validation, evaluation, the refinement's start) anchor the flow to
         the camera's measured motion — turn on ``rigid_vote``, ``ego_l0_hold`` with ``ego_l0_hold_from`` =
-        ``"l1"`` and ``ego_gate_evidence`` for the pass — so the finest level moves only the points frame 2
-        shows moving, with the camera's motion measured (the vote) and fitted at L1, never pulled by the L0
-        matching; training steps run with the switches as set (trained with the hold, the movers do not
-        learn stably; twentieth round). Needs ``translation_vote``, ``ego_head`` and ``l0_cost_volume``. A
-        departure; false = inference as trained.
+        ``"vote"`` and ``ego_gate_evidence`` for the pass — so a point takes the rigid vote's motion unless
+        the net's own flow departs from it and frame 2 supports the departure (movers); training steps run
+        with the switches as set (trained with the hold, the movers did not learn stably; twentieth round).
+        Needs ``translation_vote``, ``ego_head`` and ``l0_cost_volume``. A departure; false = inference as
+        trained.
     """
 
     n_points: int = 8192
@@ -173,8 +174,10 @@ class HALFlowConfig:
         if self.ego_l0_hold and not (self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.ego_l0_hold holds the L0 ego head at a motion fitted before the L0 cost volume: "
                               "it needs model.ego_head and model.l0_cost_volume true")
-        if self.ego_l0_hold_from not in ("l0", "l1"):
-            raise ConfigError(f"model.ego_l0_hold_from must be 'l0' or 'l1', got {self.ego_l0_hold_from!r}")
+        if self.ego_l0_hold_from not in ("l0", "l1", "vote"):
+            raise ConfigError(f"model.ego_l0_hold_from must be 'l0', 'l1' or 'vote', got {self.ego_l0_hold_from!r}")
+        if self.ego_l0_hold_from == "vote" and not self.translation_vote:
+            raise ConfigError("model.ego_l0_hold_from 'vote' holds the vote's motion: it needs model.translation_vote")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
         if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
@@ -215,7 +218,7 @@ class HALFlowConfig:
         """The switches an inference pass runs with: this config, with ``eval_anchor``'s three turned on."""
         if not self.eval_anchor:
             return self
-        return replace(self, rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="l1", ego_gate_evidence=True)
+        return replace(self, rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="vote", ego_gate_evidence=True)
 
     @property
     def output_points(self) -> tuple[int, ...]:
