@@ -311,9 +311,11 @@ class HALFlowNet(nn.Module):
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
         hold = None
-        if cfg.ego_l0_hold:  # "vote": frame 2 is pre-aligned by the vote, so its motion is the identity here
-            eye = (torch.eye(3, device=flow.device).expand(flow.shape[0], 3, 3), flow.new_zeros(flow.shape[0], 3))
-            hold = {"l0": before, "l1": motion, "vote": eye}[cfg.ego_l0_hold_from]
+        if cfg.ego_l0_hold and cfg.ego_l0_hold_from == "vote":  # frame 2 is pre-aligned by the vote: its motion
+            B = flow.shape[0]  # is the identity here
+            hold = (torch.eye(3, device=flow.device, dtype=flow.dtype).expand(B, 3, 3), flow.new_zeros(B, 3))
+        elif cfg.ego_l0_hold:
+            hold = before if cfg.ego_l0_hold_from == "l0" else motion
         flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, p2.xyz[0], hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
