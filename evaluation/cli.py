@@ -73,8 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "their flow: '<net> + view pruning + rigid polish + refinement'")
     r.add_argument("--eval-anchor", default="as-trained", choices=("as-trained", "on", "off"),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
-                        "held at L1's camera motion, the evidence gate): as trained, or forced on / off, so a net "
-                        "can be scored both ways; a forced setting that differs is named in the row")
+                        "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
+                        "net can be scored both ways; a forced setting that differs is named in the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")

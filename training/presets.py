@@ -22,7 +22,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     normals (``loss.chamfer_plane``, ``loss.laplacian_plane``, fourteenth round) with the flow's departures
     from the camera's motion kept smooth over frame t (``loss.flow_smooth``, fifteenth round: with these
     three, longer training no longer makes the net worse), and at inference the flow anchored to the
-    camera's measured motion (``model.eval_anchor``: the rigid vote, the finest level held at L1's motion, a
+    camera's measured motion (``model.eval_anchor``: the rigid vote, the finest level held at the vote's motion, a
     departure taken only where frame 2 supports it; twentieth round); ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
