@@ -18,6 +18,7 @@ from dataclasses import replace
 
 from benchmarks.named_folders import named_folder
 from core.errors import ConfigError, run_cli
+from training.model.halflownet_config import ANCHOR_SWITCHES
 
 _L1 = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
 _VOTE = {"ego_l0_hold": True, "ego_l0_hold_from": "vote"}
@@ -30,7 +31,7 @@ PARTS: dict[str, dict[str, object]] = {
     "rvh": {**_OFF, "rigid_vote": True, **_L1},
     "rvhe": {"rigid_vote": True, **_L1, "ego_gate_evidence": True},
     "rvhv": {**_OFF, "rigid_vote": True, **_VOTE},
-    "all": {"rigid_vote": True, **_VOTE, "ego_gate_evidence": True},
+    "all": ANCHOR_SWITCHES,
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``none`` the net without any of them."""

@@ -12,6 +12,10 @@ from training.choices import BACKENDS, NORMS
 
 N_LEVELS = 5  # L0..L4; flows come out at L0..L3
 
+ANCHOR_SWITCHES: dict[str, Any] = {"rigid_vote": True, "ego_l0_hold": True, "ego_l0_hold_from": "vote",
+                                   "ego_gate_evidence": True}
+"""What ``HALFlowConfig.eval_anchor`` turns on for an inference pass (:meth:`HALFlowConfig.at_inference`)."""
+
 
 @dataclass
 class HALFlowConfig:
@@ -218,7 +222,7 @@ class HALFlowConfig:
         """The switches an inference pass runs with: this config, with ``eval_anchor``'s three turned on."""
         if not self.eval_anchor:
             return self
-        return replace(self, rigid_vote=True, ego_l0_hold=True, ego_l0_hold_from="vote", ego_gate_evidence=True)
+        return replace(self, **ANCHOR_SWITCHES)
 
     @property
     def output_points(self) -> tuple[int, ...]:
