@@ -35,7 +35,8 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
 
     cfg = VoteConfig(candidates=candidates)
     if rigid:
-        method = RigidVoteBaseline(RigidVoteConfig(vote=cfg, planar=rigid == "planar"), sample_points=level_points)
+        method = RigidVoteBaseline(RigidVoteConfig(vote=cfg, planar=rigid.startswith("planar")),
+                                   sample_points=level_points, dense_target=rigid.endswith("dense"))
     else:
         method = TranslationVoteBaseline(cfg, sample_points=level_points)
     rng = np.random.default_rng(seed)

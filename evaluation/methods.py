@@ -92,8 +92,11 @@ class NetMethod:
         if eval_anchor is not None and eval_anchor != getattr(self.config, "eval_anchor", None):
             if not hasattr(self.config, "eval_anchor"):
                 raise ConfigError(f"{path}: the {self.model_name} net has no inference anchor (eval_anchor)")
+            changes = {"eval_anchor": bool(eval_anchor)}
+            if not eval_anchor and not self.config.rigid_vote:  # no rigid vote left for its dense matching
+                changes["rigid_vote_dense"] = False
             try:
-                self.config = net.config = replace(self.config, eval_anchor=bool(eval_anchor))
+                self.config = net.config = replace(self.config, **changes)
             except ConfigError as e:
                 raise ConfigError(f"{path}: {e}") from None
             suffix = ", anchored" if eval_anchor else ", not anchored"

@@ -20,16 +20,23 @@ class RigidVoteBaseline:
     """``flow = R p + t − p`` for every pc1 point (metres, camera frame of frame 1).
 
     sample_points: the fit runs on this many farthest-point samples of each cloud (all points when a cloud
-        has fewer; 0 = every point); 512 = the demo net's L0 at 2048 input points."""
+        has fewer; 0 = every point); 512 = the demo net's L0 at 2048 input points.
+    dense_target: the rigid rounds match pc1's samples against the whole pc2 given, not only its samples,
+        as the demo preset's net does (``model.rigid_vote_dense``; twenty-first round); false = the
+        samples alone (the eighteenth to twentieth rounds' ``rvote``)."""
 
     config: RigidVoteConfig = field(default_factory=RigidVoteConfig)
     name: str = "rvote"
     sample_points: int = 512
+    dense_target: bool = True
 
     def __call__(self, pc1: np.ndarray, pc2: np.ndarray) -> np.ndarray:
+        import torch
+
         from training.model.rigid_vote import vote_rigid
 
         p1, a, b = sampled_clouds(pc1, pc2, self.sample_points)
-        R, t = vote_rigid(a, b, self.config)
+        target = torch.from_numpy(np.ascontiguousarray(pc2, dtype=np.float32)[None]) if self.dense_target else None
+        R, t = vote_rigid(a, b, self.config, target)
         flow = p1 @ R[0].double().numpy().T + t[0].double().numpy() - p1  # p1: float64 (N, 3)
         return flow.astype(np.float32)

@@ -230,6 +230,18 @@ def test_the_inference_anchor_can_be_forced_either_way_and_names_the_row(world: 
     assert [r["method"] for r in rows] == ["ours (run, step 3, anchored)"]
 
 
+def test_a_net_anchored_with_the_dense_vote_can_be_scored_without_the_anchor(tmp_path: Path) -> None:
+    """The demo preset's net (``eval_anchor`` and ``rigid_vote_dense``) forced off runs without the vote, so
+    the dense matching goes with it instead of refusing the config."""
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
+                 eval_anchor=True, rigid_vote_dense=True)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    off = NetMethod(path, device="cpu", eval_anchor=False)
+    assert off.name == "ours (run, step 3, not anchored)"
+    assert not off.net.config.eval_anchor and not off.net.config.rigid_vote_dense
+    assert NetMethod(path, device="cpu").net.config.rigid_vote_dense  # as trained: untouched
+
+
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     rc = main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--baselines", "zero", "--plots",

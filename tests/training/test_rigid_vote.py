@@ -93,6 +93,23 @@ def test_bad_settings_are_refused():
             RigidVoteConfig(**kw)
     with pytest.raises(ConfigError, match="translation_vote"):
         HALFlowConfig(rigid_vote=True)
+    with pytest.raises(ConfigError, match="rigid_vote_dense"):
+        HALFlowConfig(translation_vote=True, rigid_vote_dense=True)
+
+
+def test_a_dense_target_holding_each_points_counterpart_gives_the_exact_motion():
+    """``target``: the rigid rounds match frame 1's sample against a denser cloud of frame 2. When that cloud
+    holds every frame-1 point's true counterpart, the last rounds pair each point with it and the fit is
+    exact; between two independent sparse samples it is off by a share of their spacing."""
+    R_true, t_true = _turn(2.0, 0.3), torch.tensor([0.05, 0.02, 1.2])
+    pc1 = _street(300)
+    sparse = _street(300, seed=1) @ R_true.T + t_true  # another sample of the same surfaces
+    dense = torch.cat([pc1 @ R_true.T + t_true, _street(1700, seed=2) @ R_true.T + t_true], 1)
+    R, t = vote_rigid(pc1, sparse)
+    err_sparse = _static_error(R[0], t[0], pc1[0], R_true, t_true)
+    R, t = vote_rigid(pc1, sparse, target=dense)
+    err_dense = _static_error(R[0], t[0], pc1[0], R_true, t_true)
+    assert err_dense < 1e-3 < err_sparse, (err_dense, err_sparse)
 
 
 def _cfg(**kw) -> HALFlowConfig:
@@ -209,3 +226,25 @@ def test_holding_l0_at_the_votes_motion_keeps_every_level_out_of_the_camera_moti
     assert torch.allclose(outs[0.5].rigid_flows[0], p @ R_true.T + t_true - p, atol=0.01)
     with pytest.raises(ConfigError, match="needs model.translation_vote"):
         HALFlowConfig(ego_head=True, l0_cost_volume=True, ego_l0_hold=True, ego_l0_hold_from="vote")
+
+
+def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
+    """``model.rigid_vote_dense``: the net's rigid vote matches against frame 2's input cloud (centred as the
+    L0 points are), not only its L0 samples; without it, against the L0 samples alone."""
+    import training.model.halflownet as halflownet
+
+    seen = []
+
+    def spy(xyz1, xyz2, config=None, target=None):
+        seen.append((xyz1.shape[1], xyz2.shape[1], None if target is None else target.shape[1]))
+        return vote_rigid(xyz1, xyz2, config, target)
+
+    monkeypatch.setattr(halflownet, "vote_rigid", spy)
+    pc1 = _street(512)
+    pc2 = _street(512, seed=1) + torch.tensor([0.0, 0.0, 1.0])
+    n0 = level_points_for(512)[0]
+    for dense, want in ((True, 512), (False, None)):
+        net = HALFlowNet(_cfg(rigid_vote=True, rigid_vote_dense=dense)).eval()
+        with torch.no_grad():
+            net(pc1, pc2)
+        assert seen.pop() == (n0, n0, want)

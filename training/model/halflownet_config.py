@@ -57,6 +57,12 @@ class HALFlowConfig:
         inverse motion, and every output flow ``f`` becomes ``R (p + f) + t − p``. The net regresses what the
         camera's rotation and translation leave, so it need not learn to read a turn from the training
         worlds' few; false = the translation alone. A departure (docs/learned-flow.md, eighteenth round).
+    rigid_vote_dense: the rigid vote's matching rounds and its frame-2 samples: frame 1's L0 points are
+        matched against frame 2's whole input cloud instead of its L0 points (the histogram vote and the
+        choice among its hypotheses stay on the L0 points). Between two sparse independent samples a
+        nearest neighbour lies about one sample spacing off the true correspondent; against the denser
+        cloud it lies closer (docs/learned-flow.md, twenty-first round). Needs ``rigid_vote`` or
+        ``eval_anchor``; false = the L0 points alone (as the eighteenth to twentieth rounds ran).
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -140,6 +146,7 @@ class HALFlowConfig:
     translation_vote: bool = False
     translation_vote_max_m: float = 3.0
     rigid_vote: bool = False
+    rigid_vote_dense: bool = False
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -184,6 +191,9 @@ class HALFlowConfig:
             raise ConfigError("model.ego_l0_hold_from 'vote' holds the vote's motion: it needs model.translation_vote")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
+        if self.rigid_vote_dense and not (self.rigid_vote or self.eval_anchor):
+            raise ConfigError("model.rigid_vote_dense changes the rigid vote's matching: it needs model.rigid_vote "
+                              "or model.eval_anchor")
         if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.eval_anchor turns on the rigid vote and the L0 hold at inference: it needs "
                               "model.translation_vote, model.ego_head and model.l0_cost_volume true")

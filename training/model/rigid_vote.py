@@ -64,16 +64,22 @@ class RigidVoteConfig:
 
 
 @torch.no_grad()
-def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None) -> tuple[Tensor, Tensor]:
+def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None,
+               target: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """The rotation R (B, 3, 3) and translation t (B, 3) taking ``xyz1`` (B, N, 3) onto ``xyz2`` (B, M, 3),
-    metres, one common camera frame (module docstring). No gradient."""
+    metres, one common camera frame (module docstring). No gradient.
+
+    ``target`` (B, P, 3), optional: a denser sample of the same frame-2 cloud (the net's input) that the
+    rigid rounds and the final scoring match against, instead of ``xyz2``; the vote still runs between
+    ``xyz1`` and ``xyz2``."""
     cfg = config or RigidVoteConfig()
     fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
     h = vote_hypotheses(xyz1, xyz2, cfg.vote)
     B, K = h.t.shape[:2]
+    dense = xyz2 if target is None else target
     # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
     a = xyz1.detach().double()[:, None].expand(B, K, *xyz1.shape[1:]).reshape(B * K, -1, 3)
-    b = xyz2.detach().double()[:, None].expand(B, K, *xyz2.shape[1:]).reshape(B * K, -1, 3)
+    b = dense.detach().double()[:, None].expand(B, K, *dense.shape[1:]).reshape(B * K, -1, 3)
     t0 = h.t.double().reshape(B * K, 3)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
     R, t = eye.clone(), t0.clone()
@@ -93,7 +99,10 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     R = torch.where(keep[:, None, None], R, eye)
     t = torch.where(keep[:, None], t, t0)
     # step 3 of the vote with the whole motion: the hypothesis that explains the most frame-1 points
+    # (against the vote's own frame-2 samples, whose spacing the frame-1 spacing matches)
     spacing = h.spacing.double()[:, None].expand(B, K, -1).reshape(B * K, -1)
+    if target is not None:
+        b = xyz2.detach().double()[:, None].expand(B, K, *xyz2.shape[1:]).reshape(B * K, -1, 3)
     score = explained(a @ R.transpose(1, 2) + t[:, None], b, spacing).reshape(B, K)
     pick = score.argmax(dim=1)
     R, t = R.reshape(B, K, 3, 3)[torch.arange(B), pick], t.reshape(B, K, 3)[torch.arange(B), pick]
