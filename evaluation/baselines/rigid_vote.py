@@ -36,7 +36,7 @@ class RigidVoteBaseline:
         from training.model.rigid_vote import vote_rigid
 
         p1, a, b = sampled_clouds(pc1, pc2, self.sample_points)
-        target = torch.from_numpy(np.ascontiguousarray(pc2, dtype=np.float32)[None]) if self.dense_target else None
+        target = torch.tensor(np.asarray(pc2, dtype=np.float32))[None] if self.dense_target else None  # a copy
         R, t = vote_rigid(a, b, self.config, target)
         flow = p1 @ R[0].double().numpy().T + t[0].double().numpy() - p1  # p1: float64 (N, 3)
         return flow.astype(np.float32)
