@@ -22,7 +22,8 @@ from training.model.halflownet_config import ANCHOR_SWITCHES
 
 _L1 = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
 _VOTE = {"ego_l0_hold": True, "ego_l0_hold_from": "vote"}
-_OFF = {"rigid_vote": False, "rigid_vote_dense": False, "ego_l0_hold": False, "ego_gate_evidence": False}
+_OFF = {"rigid_vote": False, "rigid_vote_dense": False, "rigid_vote_far": False, "ego_l0_hold": False,
+        "ego_gate_evidence": False}
 PARTS: dict[str, dict[str, object]] = {
     "none": _OFF,
     "he": {**_OFF, **_L1, "ego_gate_evidence": True},
@@ -31,12 +32,14 @@ PARTS: dict[str, dict[str, object]] = {
     "rvh": {**_OFF, "rigid_vote": True, **_L1},
     "rvhe": {"rigid_vote": True, **_L1, "ego_gate_evidence": True},
     "rvhv": {**_OFF, "rigid_vote": True, **_VOTE},
-    "all": {**ANCHOR_SWITCHES, "rigid_vote_dense": False},
-    "alld": {**ANCHOR_SWITCHES, "rigid_vote_dense": True},
+    "all": {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False},
+    "alld": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": False},
+    "alldf": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
-frame 2's whole input (``rigid_vote_dense``), ``none`` the net without any of them."""
+frame 2's whole input (``rigid_vote_dense``), ``alldf`` and its choice weighed by range (``rigid_vote_far``),
+``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

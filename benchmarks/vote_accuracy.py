@@ -27,7 +27,8 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
     """Per pair, the mean static-point error of the voted translation (metres), as the ``tvote`` baseline
     finds it on the pair's random sample; ``samples`` yield :class:`evaluation.sample.SceneFlowSample`.
     ``rigid`` "free" or "planar": of the rigid vote's flow ``R p + t − p`` instead (the ``rvote`` baseline,
-    :mod:`training.model.rigid_vote`), fitted on the same level-0 samples."""
+    :mod:`training.model.rigid_vote`), fitted on the same level-0 samples; with "-dense" its rounds match the
+    whole random sample of frame 2, with "-far" its choice is weighed by range ("free-dense-far")."""
     from evaluation.baselines.rigid_vote import RigidVoteBaseline
     from evaluation.baselines.translation_vote import TranslationVoteBaseline
     from training.model.rigid_vote import RigidVoteConfig
@@ -35,8 +36,9 @@ def vote_errors(samples, n_points: int, level_points: int, candidates: int, seed
 
     cfg = VoteConfig(candidates=candidates)
     if rigid:
-        method = RigidVoteBaseline(RigidVoteConfig(vote=cfg, planar=rigid.startswith("planar")),
-                                   sample_points=level_points, dense_target=rigid.endswith("dense"))
+        method = RigidVoteBaseline(RigidVoteConfig(vote=cfg, planar=rigid.startswith("planar"),
+                                                   range_weighted="far" in rigid),
+                                   sample_points=level_points, dense_target="dense" in rigid)
     else:
         method = TranslationVoteBaseline(cfg, sample_points=level_points)
     rng = np.random.default_rng(seed)
@@ -62,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--candidates", default="1,4", help="comma list of VoteConfig.candidates to compare")
     p.add_argument("--fail-m", type=float, default=0.5)
     p.add_argument("--rigid", default="", help="comma list of rigid-vote modes to add (free, planar): the vote "
-                   "followed by trimmed rigid matching (training.model.rigid_vote)")
+                   "followed by trimmed rigid matching (training.model.rigid_vote); '-dense' matches the rounds "
+                   "against the whole cloud, '-far' weighs the choice by range (e.g. free-dense-far)")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
 

@@ -93,8 +93,8 @@ class NetMethod:
             if not hasattr(self.config, "eval_anchor"):
                 raise ConfigError(f"{path}: the {self.model_name} net has no inference anchor (eval_anchor)")
             changes = {"eval_anchor": bool(eval_anchor)}
-            if not eval_anchor and not self.config.rigid_vote:  # no rigid vote left for its dense matching
-                changes["rigid_vote_dense"] = False
+            if not eval_anchor and not self.config.rigid_vote:  # no rigid vote left for its two options
+                changes.update(rigid_vote_dense=False, rigid_vote_far=False)
             try:
                 self.config = net.config = replace(self.config, **changes)
             except ConfigError as e:

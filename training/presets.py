@@ -24,7 +24,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     three, longer training no longer makes the net worse), and at inference the flow anchored to the
     camera's measured motion (``model.eval_anchor``: the rigid vote, the finest level held at the vote's motion, a
     departure taken only where frame 2 supports it; twentieth round), the vote's rigid rounds matching frame 2's
-    whole input (``model.rigid_vote_dense``, twenty-first round); ``overrides`` are dotted
+    whole input and its choice weighed by range (``model.rigid_vote_dense``, ``model.rigid_vote_far``,
+    twenty-first round); ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
@@ -40,6 +41,6 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True, "l0_cost_volume": True, "norm": "layer",
                   "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True,
-                  "eval_anchor": True, "rigid_vote_dense": True},
+                  "eval_anchor": True, "rigid_vote_dense": True, "rigid_vote_far": True},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")

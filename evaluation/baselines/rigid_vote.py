@@ -23,9 +23,10 @@ class RigidVoteBaseline:
         has fewer; 0 = every point); 512 = the demo net's L0 at 2048 input points.
     dense_target: the rigid rounds match pc1's samples against the whole pc2 given, not only its samples,
         as the demo preset's net does (``model.rigid_vote_dense``; twenty-first round); false = the
-        samples alone (the eighteenth to twentieth rounds' ``rvote``)."""
+        samples alone (the eighteenth to twentieth rounds' ``rvote``). The default config weighs the choice
+        among the vote's hypotheses by range, as the preset's net does (``model.rigid_vote_far``)."""
 
-    config: RigidVoteConfig = field(default_factory=RigidVoteConfig)
+    config: RigidVoteConfig = field(default_factory=lambda: RigidVoteConfig(range_weighted=True))
     name: str = "rvote"
     sample_points: int = 512
     dense_target: bool = True

@@ -231,15 +231,17 @@ def test_the_inference_anchor_can_be_forced_either_way_and_names_the_row(world: 
 
 
 def test_a_net_anchored_with_the_dense_vote_can_be_scored_without_the_anchor(tmp_path: Path) -> None:
-    """The demo preset's net (``eval_anchor`` and ``rigid_vote_dense``) forced off runs without the vote, so
-    the dense matching goes with it instead of refusing the config."""
+    """The demo preset's net (``eval_anchor``, ``rigid_vote_dense``, ``rigid_vote_far``) forced off runs
+    without the vote, so the vote's options go with it instead of refusing the config."""
     parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True)
+                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
     off = NetMethod(path, device="cpu", eval_anchor=False)
     assert off.name == "ours (run, step 3, not anchored)"
-    assert not off.net.config.eval_anchor and not off.net.config.rigid_vote_dense
-    assert NetMethod(path, device="cpu").net.config.rigid_vote_dense  # as trained: untouched
+    cfg = off.net.config
+    assert not (cfg.eval_anchor or cfg.rigid_vote_dense or cfg.rigid_vote_far)
+    cfg = NetMethod(path, device="cpu").net.config  # as trained: untouched
+    assert cfg.rigid_vote_dense and cfg.rigid_vote_far
 
 
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:

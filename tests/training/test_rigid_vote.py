@@ -62,6 +62,26 @@ def test_a_mover_does_not_pull_the_camera_motion():
     assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.05
 
 
+def test_range_weighting_picks_the_far_static_scene_over_a_near_mover_as_dense():
+    """A car 4–10 m ahead with as many points as the whole street (the street 5–35 m away), driving away
+    while the camera drives on: counted alike, its motion explains as many points as the camera's and wins;
+    weighted by range (``range_weighted``), the static scene's far points carry the choice."""
+    t_true = torch.tensor([0.0, 0.0, -1.2])
+    pc1 = _street(300)
+    car = torch.rand(1, 300, 3, generator=torch.Generator().manual_seed(2)) * torch.tensor([4.0, 1.5, 6.0])
+    car = car + torch.tensor([-1.0, -0.5, 4.0])
+    pc1_all = torch.cat([pc1, car], 1)
+    pc2_all = torch.cat([_street(300, seed=1) + t_true, car + torch.tensor([0.0, 0.0, 0.3])], 1)
+    R, t = vote_rigid(pc1_all, pc2_all)
+    assert _static_error(R[0], t[0], pc1[0], torch.eye(3), t_true) > 1.0  # the car's motion
+    R, t = vote_rigid(pc1_all, pc2_all, RigidVoteConfig(range_weighted=True))
+    assert _static_error(R[0], t[0], pc1[0], torch.eye(3), t_true) < 0.1
+    # the range is measured from the given camera position: the same clouds shifted, with that origin
+    shift = torch.tensor([[3.0, -1.0, 20.0]])
+    R2, t2 = vote_rigid(pc1_all - shift, pc2_all - shift, RigidVoteConfig(range_weighted=True), origin=-shift)
+    assert _static_error(R2[0], t2[0] + shift[0] - shift[0] @ R2[0].T, pc1[0], torch.eye(3), t_true) < 0.1
+
+
 def test_planar_fits_a_turn_about_y_and_no_vertical_motion():
     R_true, t_true = _turn(3.0), torch.tensor([0.1, 0.0, 1.0])
     pc1 = _street(900)
@@ -93,8 +113,9 @@ def test_bad_settings_are_refused():
             RigidVoteConfig(**kw)
     with pytest.raises(ConfigError, match="translation_vote"):
         HALFlowConfig(rigid_vote=True)
-    with pytest.raises(ConfigError, match="rigid_vote_dense"):
-        HALFlowConfig(translation_vote=True, rigid_vote_dense=True)
+    for name in ("rigid_vote_dense", "rigid_vote_far"):
+        with pytest.raises(ConfigError, match=name):
+            HALFlowConfig(translation_vote=True, **{name: True})
 
 
 def test_a_dense_target_holding_each_points_counterpart_gives_the_exact_motion():
@@ -230,14 +251,16 @@ def test_holding_l0_at_the_votes_motion_keeps_every_level_out_of_the_camera_moti
 
 def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
     """``model.rigid_vote_dense``: the net's rigid vote matches against frame 2's input cloud (centred as the
-    L0 points are), not only its L0 samples; without it, against the L0 samples alone."""
+    L0 points are), not only its L0 samples; without it, against the L0 samples alone. The camera's position
+    in that centred frame goes with it (for ``model.rigid_vote_far``)."""
     import training.model.halflownet as halflownet
 
-    seen = []
+    seen, origins = [], []
 
-    def spy(xyz1, xyz2, config=None, target=None):
+    def spy(xyz1, xyz2, config=None, target=None, origin=None):
         seen.append((xyz1.shape[1], xyz2.shape[1], None if target is None else target.shape[1]))
-        return vote_rigid(xyz1, xyz2, config, target)
+        origins.append(origin)
+        return vote_rigid(xyz1, xyz2, config, target, origin)
 
     monkeypatch.setattr(halflownet, "vote_rigid", spy)
     pc1 = _street(512)
@@ -248,3 +271,4 @@ def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
         with torch.no_grad():
             net(pc1, pc2)
         assert seen.pop() == (n0, n0, want)
+        assert torch.allclose(origins.pop(), -pc1.mean(dim=1))  # the camera, in the net's centred frame

@@ -63,6 +63,10 @@ class HALFlowConfig:
         nearest neighbour lies about one sample spacing off the true correspondent; against the denser
         cloud it lies closer (docs/learned-flow.md, twenty-first round). Needs ``rigid_vote`` or
         ``eval_anchor``; false = the L0 points alone (as the eighteenth to twentieth rounds ran).
+    rigid_vote_far: the rigid vote picks among its hypotheses by the frame-1 points each explains weighted
+        by their distance from the camera instead of counted alike: a wrong motion shows most at range, and
+        in dense traffic the movers crowd the near field (:class:`~training.model.rigid_vote.RigidVoteConfig`
+        ``range_weighted``; twenty-first round). Needs ``rigid_vote`` or ``eval_anchor``; false = counted alike.
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -147,6 +151,7 @@ class HALFlowConfig:
     translation_vote_max_m: float = 3.0
     rigid_vote: bool = False
     rigid_vote_dense: bool = False
+    rigid_vote_far: bool = False
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -191,9 +196,10 @@ class HALFlowConfig:
             raise ConfigError("model.ego_l0_hold_from 'vote' holds the vote's motion: it needs model.translation_vote")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
-        if self.rigid_vote_dense and not (self.rigid_vote or self.eval_anchor):
-            raise ConfigError("model.rigid_vote_dense changes the rigid vote's matching: it needs model.rigid_vote "
-                              "or model.eval_anchor")
+        for name in ("rigid_vote_dense", "rigid_vote_far"):
+            if getattr(self, name) and not (self.rigid_vote or self.eval_anchor):
+                raise ConfigError(f"model.{name} changes the rigid vote: it needs model.rigid_vote or "
+                                  "model.eval_anchor")
         if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.eval_anchor turns on the rigid vote and the L0 hold at inference: it needs "
                               "model.translation_vote, model.ego_head and model.l0_cost_volume true")

@@ -84,11 +84,13 @@ def _refine(a: Tensor, b: Tensor, t: Tensor, radii: tuple[float, ...]) -> Tensor
     return t
 
 
-def explained(moved: Tensor, b: Tensor, spacing: Tensor) -> Tensor:
+def explained(moved: Tensor, b: Tensor, spacing: Tensor, weights: Tensor | None = None) -> Tensor:
     """How many of the moved frame-1 points ``moved`` (H, M, 3) have a point of ``b`` (H, N, 3) within their
     own ``spacing`` (H, M): a sparse far point counts as readily as a dense near one, so the count
-    measures how much of the scene a motion explains (step 3 of the module docstring)."""
-    return (torch.cdist(moved, b).min(dim=2).values < spacing).to(moved.dtype).sum(1)
+    measures how much of the scene a motion explains (step 3 of the module docstring). ``weights`` (H, M):
+    what each such point counts (default 1)."""
+    hit = (torch.cdist(moved, b).min(dim=2).values < spacing).to(moved.dtype)
+    return (hit if weights is None else hit * weights).sum(1)
 
 
 class VoteHypotheses(NamedTuple):
