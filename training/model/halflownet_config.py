@@ -57,12 +57,12 @@ class HALFlowConfig:
         inverse motion, and every output flow ``f`` becomes ``R (p + f) + t − p``. The net regresses what the
         camera's rotation and translation leave, so it need not learn to read a turn from the training
         worlds' few; false = the translation alone. A departure (docs/learned-flow.md, eighteenth round).
-    rigid_vote_dense: the rigid vote's matching rounds and its frame-2 samples: frame 1's L0 points are
-        matched against frame 2's whole input cloud instead of its L0 points (the histogram vote and the
-        choice among its hypotheses stay on the L0 points). Between two sparse independent samples a
-        nearest neighbour lies about one sample spacing off the true correspondent; against the denser
-        cloud it lies closer (docs/learned-flow.md, twenty-first round). Needs ``rigid_vote`` or
-        ``eval_anchor``; false = the L0 points alone (as the eighteenth to twentieth rounds ran).
+    rigid_vote_dense: the rigid vote's trimmed rounds match frame 1's L0 points against frame 2's whole
+        input cloud instead of its L0 points (the histogram vote and the choice among its hypotheses stay
+        on the L0 points). Between two sparse independent samples a nearest neighbour lies about one
+        sample spacing off the true correspondent; against the denser cloud it lies closer
+        (docs/learned-flow.md, twenty-first round). Needs ``rigid_vote`` or ``eval_anchor``; false = the L0
+        points alone (as the eighteenth to twentieth rounds ran).
     rigid_vote_far: the rigid vote picks among its hypotheses by the frame-1 points each explains weighted
         by their distance from the camera instead of counted alike: a wrong motion shows most at range, and
         in dense traffic the movers crowd the near field (:class:`~training.model.rigid_vote.RigidVoteConfig`
