@@ -9,7 +9,7 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
 
 1. ``T ← (I, t)`` for each of the vote's refined hypotheses ``t`` (its fullest histogram maxima);
 2. for every radius of ``radii_m``, widest first, ``rounds`` times: every frame-1 point ``p`` takes the
-   frame-2 point nearest to ``T p``; the pairs closer than the radius are inliers; ``T`` ← the rigid
+   frame-2 point nearest to ``T p`` (of a denser ``target`` cloud of frame 2 where one is given); the pairs closer than the radius are inliers; ``T`` ← the rigid
    motion that maps the inliers' ``p`` onto their matches in least squares
    (:func:`~training.model.ego_motion.weighted_rigid_fit`, Kabsch; or a turn about y and a translation in
    x–z with ``planar``, :func:`~training.model.ego_motion.weighted_planar_fit`);
@@ -17,7 +17,9 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
 4. the hypothesis whose motion explains the most frame-1 points (each has a frame-2 point within its own
    sampling spacing, the vote's own step 3) wins. The vote picks among translations, so under a turn,
    which spreads the static scene's votes by θ·ρ, a dense mover can win it; picking after the rigid
-   rounds compares every hypothesis at its best.
+   rounds compares every hypothesis at its best. With ``range_weighted`` each explained point counts its
+   distance from the camera instead of 1, so a dense mover near the camera does not outweigh the far
+   static scene.
 
 The vote puts the fit in the right basin (what plain ICP from the identity lacks on fast scenes), the
 trimmed rounds drop the pairs a mover or an occlusion makes, as the vote's own refinement does. No
