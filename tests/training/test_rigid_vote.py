@@ -267,8 +267,9 @@ def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
     pc2 = _street(512, seed=1) + torch.tensor([0.0, 0.0, 1.0])
     n0 = level_points_for(512)[0]
     for dense, want in ((True, 512), (False, None)):
-        net = HALFlowNet(_cfg(rigid_vote=True, rigid_vote_dense=dense)).eval()
+        net = HALFlowNet(_cfg(rigid_vote=True, rigid_vote_dense=dense, rigid_vote_far=dense)).eval()
         with torch.no_grad():
-            net(pc1, pc2)
+            out = net(pc1, pc2)
+        assert all(torch.isfinite(f).all() for f in out.flows)
         assert seen.pop() == (n0, n0, want)
         assert torch.allclose(origins.pop(), -pc1.mean(dim=1))  # the camera, in the net's centred frame
