@@ -9,8 +9,9 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
 
 1. ``T ← (I, t)`` for each of the vote's refined hypotheses ``t`` (its fullest histogram maxima);
 2. for every radius of ``radii_m``, widest first, ``rounds`` times: every frame-1 point ``p`` takes the
-   frame-2 point nearest to ``T p`` (of a denser ``target`` cloud of frame 2 where one is given); the pairs closer than the radius are inliers; ``T`` ← the rigid
-   motion that maps the inliers' ``p`` onto their matches in least squares
+   frame-2 point nearest to ``T p`` (of a denser ``target`` cloud of frame 2 where one is given); the pairs
+   closer than the radius are inliers; ``T`` ← the rigid motion that maps the inliers' ``p`` onto their
+   matches in least squares
    (:func:`~training.model.ego_motion.weighted_rigid_fit`, Kabsch; or a turn about y and a translation in
    x–z with ``planar``, :func:`~training.model.ego_motion.weighted_planar_fit`);
 3. a hypothesis whose last round keeps fewer than ``min_inliers`` pairs keeps its translation alone;
@@ -38,7 +39,7 @@ from torch import Tensor
 
 from training.knn import knn
 from training.model.ego_motion import weighted_planar_fit, weighted_rigid_fit
-from training.model.translation_vote import VoteConfig, explained, vote_hypotheses
+from training.model.translation_vote import VoteConfig, explained, per_hypothesis, vote_hypotheses
 
 
 @dataclass(frozen=True)
@@ -84,10 +85,9 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
     h = vote_hypotheses(xyz1, xyz2, cfg.vote)
     B, K = h.t.shape[:2]
-    dense = xyz2 if target is None else target
     # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
-    a = xyz1.detach().double()[:, None].expand(B, K, *xyz1.shape[1:]).reshape(B * K, -1, 3)
-    b = dense.detach().double()[:, None].expand(B, K, *dense.shape[1:]).reshape(B * K, -1, 3)
+    a = per_hypothesis(xyz1.detach().double(), K)
+    b = per_hypothesis((xyz2 if target is None else target).detach().double(), K)
     t0 = h.t.double().reshape(B * K, 3)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
     R, t = eye.clone(), t0.clone()
@@ -109,15 +109,14 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     # step 3 of the vote with the whole motion: the hypothesis that explains the most frame-1 points (each
     # weighted by its range with range_weighted), against the vote's own frame-2 samples, whose spacing the
     # frame-1 spacing matches
-    spacing = h.spacing.double()[:, None].expand(B, K, -1).reshape(B * K, -1)
-    if target is not None:
-        b = xyz2.detach().double()[:, None].expand(B, K, *xyz2.shape[1:]).reshape(B * K, -1, 3)
+    samples = b if target is None else per_hypothesis(xyz2.detach().double(), K)
     weights = None
     if cfg.range_weighted:
         o = xyz1.new_zeros(B, 3) if origin is None else origin
         rng = (xyz1.detach().double() - o.double()[:, None]).norm(dim=-1)  # (B, M) metres from the camera
-        weights = rng[:, None].expand(B, K, -1).reshape(B * K, -1)
-    score = explained(a @ R.transpose(1, 2) + t[:, None], b, spacing, weights).reshape(B, K)
+        weights = per_hypothesis(rng, K)
+    score = explained(a @ R.transpose(1, 2) + t[:, None], samples, per_hypothesis(h.spacing.double(), K),
+                      weights).reshape(B, K)
     pick = score.argmax(dim=1)
     R, t = R.reshape(B, K, 3, 3)[torch.arange(B), pick], t.reshape(B, K, 3)[torch.arange(B), pick]
     R = torch.where(h.found[:, None, None], R, torch.eye(3, dtype=R.dtype, device=R.device))

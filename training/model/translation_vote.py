@@ -84,6 +84,12 @@ def _refine(a: Tensor, b: Tensor, t: Tensor, radii: tuple[float, ...]) -> Tensor
     return t
 
 
+def per_hypothesis(x: Tensor, k: int) -> Tensor:
+    """``x`` (B, …) repeated for each of ``k`` hypotheses: (B·k, …), every cloud's copies in a row."""
+    B = x.shape[0]
+    return x[:, None].expand(B, k, *x.shape[1:]).reshape(B * k, *x.shape[1:])
+
+
 def explained(moved: Tensor, b: Tensor, spacing: Tensor, weights: Tensor | None = None) -> Tensor:
     """How many of the moved frame-1 points ``moved`` (H, M, 3) have a point of ``b`` (H, N, 3) within their
     own ``spacing`` (H, M): a sparse far point counts as readily as a dense near one, so the count
@@ -132,13 +138,12 @@ def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     ix, iy, iz = best // (n * n), (best // n) % n, best % n
     t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
     # every hypothesis against its own copy of the clouds, (B·k, ·, 3)
-    a = x1[:, None].expand(B, k, *x1.shape[1:]).reshape(B * k, -1, 3)
-    b = x2[:, None].expand(B, k, *x2.shape[1:]).reshape(B * k, -1, 3)
+    a, b = per_hypothesis(x1, k), per_hypothesis(x2, k)
     t = _refine(a, b, t.reshape(B * k, 3), cfg.bandwidths_m)
     self_d = torch.cdist(x1, x1)  # each frame-1 point's sampling spacing, at least the last radius
     self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
     spacing = self_d.min(dim=2).values.clamp_min(cfg.bandwidths_m[-1])
-    matched = explained(a + t[:, None], b, spacing[:, None].expand(B, k, -1).reshape(B * k, -1)).reshape(B, k)
+    matched = explained(a + t[:, None], b, per_hypothesis(spacing, k)).reshape(B, k)
     return VoteHypotheses(t.reshape(B, k, 3), matched, spacing, inside.any(dim=1))
 
 
