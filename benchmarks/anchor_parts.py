@@ -30,7 +30,7 @@ PARTS: dict[str, dict[str, object]] = {
     "rv": {**_OFF, "rigid_vote": True},
     "rve": {**_OFF, "rigid_vote": True, "ego_gate_evidence": True},
     "rvh": {**_OFF, "rigid_vote": True, **_L1},
-    "rvhe": {"rigid_vote": True, **_L1, "ego_gate_evidence": True},
+    "rvhe": {**_OFF, "rigid_vote": True, **_L1, "ego_gate_evidence": True},
     "rvhv": {**_OFF, "rigid_vote": True, **_VOTE},
     "all": {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False},
     "alld": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": False},
