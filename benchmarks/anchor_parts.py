@@ -35,11 +35,13 @@ PARTS: dict[str, dict[str, object]] = {
     "all": {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False},
     "alld": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": False},
     "alldf": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True},
+    "alldfk": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
 frame 2's whole input (``rigid_vote_dense``), ``alldf`` and its choice weighed by range (``rigid_vote_far``),
-``none`` the net without any of them."""
+``alldfk`` that with the gate reading each point's 16 nearest points (``eval_gate_k`` 16: the preset's
+anchor since the twenty-second round), ``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):
@@ -48,7 +50,7 @@ def with_parts(method, part: str):
     if part not in PARTS:
         raise ConfigError(f"unknown part {part!r} (choose from {', '.join(PARTS)})")
     try:
-        method.config = method.net.config = replace(method.net.config, eval_anchor=False, **PARTS[part])
+        method.config = method.net.config = replace(method.net.config.without_anchor(), **PARTS[part])
     except (ConfigError, TypeError) as e:
         raise ConfigError(f"{method.checkpoint}: cannot run the anchor's parts: {e}") from None
     method.name = f"{method.name} [{part}]"

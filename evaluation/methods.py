@@ -92,11 +92,9 @@ class NetMethod:
         if eval_anchor is not None and eval_anchor != getattr(self.config, "eval_anchor", None):
             if not hasattr(self.config, "eval_anchor"):
                 raise ConfigError(f"{path}: the {self.model_name} net has no inference anchor (eval_anchor)")
-            changes = {"eval_anchor": bool(eval_anchor)}
-            if not eval_anchor and not self.config.rigid_vote:  # no rigid vote left for its two options
-                changes.update(rigid_vote_dense=False, rigid_vote_far=False)
             try:
-                self.config = net.config = replace(self.config, **changes)
+                self.config = net.config = (replace(self.config, eval_anchor=True) if eval_anchor
+                                            else self.config.without_anchor())
             except ConfigError as e:
                 raise ConfigError(f"{path}: {e}") from None
             suffix = ", anchored" if eval_anchor else ", not anchored"

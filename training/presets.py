@@ -25,7 +25,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     camera's measured motion (``model.eval_anchor``: the rigid vote, the finest level held at the vote's motion, a
     departure taken only where frame 2 supports it; twentieth round), the vote's rigid rounds matching frame 2's
     whole input and its choice weighed by range (``model.rigid_vote_dense``, ``model.rigid_vote_far``,
-    twenty-first round); ``overrides`` are dotted
+    twenty-first round) and a departure taken only where a point's neighbourhood departs with it
+    (``model.eval_gate_k``, twenty-second round); ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
     from training.config import TrainConfig, level_points_for
@@ -41,6 +42,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
         "model": {"n_points": n_points, "level_points": list(level_points_for(n_points)), "width_scale": width_scale,
                   "ego_head": True, "l0_cost_volume": True, "norm": "layer",
                   "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True,
-                  "eval_anchor": True, "rigid_vote_dense": True, "rigid_vote_far": True},
+                  "eval_anchor": True, "rigid_vote_dense": True, "rigid_vote_far": True,
+                  "eval_gate_k": 16},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")

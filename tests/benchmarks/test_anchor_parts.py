@@ -58,3 +58,15 @@ def test_the_table_has_a_row_per_net_and_part(tmp_path, capsys):
     for r in rows:
         epe = float(r.split("|")[2].split("/")[0])
         assert np.isfinite(epe) and epe >= 0
+
+
+def test_the_presets_anchor_is_alldfk_and_its_net_takes_every_part(tmp_path):
+    """A net saved with the preset's anchor (dense, range-weighted vote, the gate over 16 neighbours): every
+    part applies to it (its own inference options are dropped first), and ``alldfk`` is its anchor."""
+    preset = dict(ANCHORABLE, eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True, eval_gate_k=16)
+    path = tiny_flow_checkpoint(tmp_path / "run" / "net.pt", **preset)
+    pc1 = structured_scene(np.random.default_rng(0), 300).astype(np.float32)
+    pc2 = (pc1 + [0.1, 0.0, 1.0]).astype(np.float32)
+    flows = {p: with_parts(NetMethod(path, device="cpu"), p)(pc1, pc2) for p in PARTS}
+    np.testing.assert_array_equal(flows["alldfk"], NetMethod(path, device="cpu")(pc1, pc2))
+    np.testing.assert_array_equal(flows["none"], NetMethod(path, device="cpu", eval_anchor=False)(pc1, pc2))

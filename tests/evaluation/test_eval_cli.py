@@ -231,17 +231,17 @@ def test_the_inference_anchor_can_be_forced_either_way_and_names_the_row(world: 
 
 
 def test_a_net_anchored_with_the_dense_vote_can_be_scored_without_the_anchor(tmp_path: Path) -> None:
-    """The demo preset's net (``eval_anchor``, ``rigid_vote_dense``, ``rigid_vote_far``) forced off runs
-    without the vote, so the vote's options go with it instead of refusing the config."""
+    """The demo preset's net (``eval_anchor``, ``rigid_vote_dense``, ``rigid_vote_far``, ``eval_gate_k``)
+    forced off runs without the vote, so the anchor's options go with it instead of refusing the config."""
     parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
+                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True, eval_gate_k=16)
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
     off = NetMethod(path, device="cpu", eval_anchor=False)
     assert off.name == "ours (run, step 3, not anchored)"
     cfg = off.net.config
-    assert not (cfg.eval_anchor or cfg.rigid_vote_dense or cfg.rigid_vote_far)
+    assert not (cfg.eval_anchor or cfg.rigid_vote_dense or cfg.rigid_vote_far or cfg.eval_gate_k)
     cfg = NetMethod(path, device="cpu").net.config  # as trained: untouched
-    assert cfg.rigid_vote_dense and cfg.rigid_vote_far
+    assert cfg.rigid_vote_dense and cfg.rigid_vote_far and cfg.eval_gate_k == 16
 
 
 def test_plots_without_matplotlib_say_how_to_install(world: Path, tmp_path: Path, monkeypatch, capsys) -> None:

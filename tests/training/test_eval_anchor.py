@@ -68,3 +68,47 @@ def test_the_config_names_its_inference_switches_and_refuses_an_anchor_without_i
     for off in ("translation_vote", "ego_head", "l0_cost_volume"):
         with pytest.raises(ConfigError, match="eval_anchor"):
             _cfg(eval_anchor=True, **{off: False})
+
+
+def test_eval_gate_k_sets_the_gates_neighbourhood_for_inference_passes_only(monkeypatch):
+    """``eval_gate_k`` (twenty-second round) is ``ego_gate_k`` for the anchored inference pass; training
+    steps keep the gate as configured (``ego_gate_k``'s rule itself: tests/training/test_ego_motion.py)."""
+    cfg = _cfg(eval_anchor=True, eval_gate_k=8)
+    assert cfg.at_inference().ego_gate_k == 8 and cfg.ego_gate_k == 0
+    assert _cfg(eval_anchor=True, ego_gate_k=4).at_inference().ego_gate_k == 4  # 0: the gate as trained
+    import training.model.halflownet as halflownet
+
+    seen: list[int] = []
+    real = halflownet.rigid_plus_residual
+
+    def spy(*args, **kwargs):
+        seen.append(args[7])  # gate_k, as the net passes it
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(halflownet, "rigid_plus_residual", spy)
+    pc1, pc2 = _pair()
+    torch.manual_seed(0)
+    net = HALFlowNet(cfg)
+    switched = HALFlowNet(_cfg(**ANCHORED, ego_gate_k=8))
+    plain = HALFlowNet(_cfg())
+    for other in (switched, plain):
+        other.load_state_dict(net.state_dict())
+    for a, b in zip(_flows(net.eval(), pc1, pc2), _flows(switched.eval(), pc1, pc2)):
+        assert torch.allclose(a, b, atol=1e-6)
+    assert seen and set(seen) == {8}
+    seen.clear()
+    for a, b in zip(_flows(net.train(), pc1, pc2), _flows(plain.train(), pc1, pc2)):
+        assert torch.allclose(a, b, atol=1e-6)
+    assert seen and set(seen) == {0}
+
+
+def test_eval_gate_k_needs_the_anchor_and_goes_with_it():
+    with pytest.raises(ConfigError, match="eval_gate_k"):
+        _cfg(eval_gate_k=8)
+    with pytest.raises(ConfigError, match="eval_gate_k"):
+        _cfg(eval_anchor=True, eval_gate_k=-1)
+    full = _cfg(eval_anchor=True, eval_gate_k=8, rigid_vote_dense=True, rigid_vote_far=True)
+    off = full.without_anchor()
+    assert not (off.eval_anchor or off.eval_gate_k or off.rigid_vote_dense or off.rigid_vote_far)
+    kept = dataclasses.replace(full, rigid_vote=True).without_anchor()  # a vote left: its options stay
+    assert kept.rigid_vote_dense and kept.rigid_vote_far and not kept.eval_gate_k

@@ -128,6 +128,11 @@ class HALFlowConfig:
         with the switches as set (trained with the hold, the movers did not learn stably; twentieth round).
         Needs ``translation_vote``, ``ego_head`` and ``l0_cost_volume``. A departure; false = inference as
         trained.
+    eval_gate_k: with ``eval_anchor``, k > 1: at inference the gate reads the component-wise median residual
+        of each point's k nearest points (``ego_gate_k``'s rule, which replaces ``ego_gate_k`` for the pass),
+        so a static point whose own flow snapped onto a nearer frame-2 sample stays at the vote's motion
+        while a mover, a cluster that departs together, keeps its flow; training steps as set. 0 = the
+        gate as trained. No gradient; a departure (twenty-second round).
     """
 
     n_points: int = 8192
@@ -167,6 +172,7 @@ class HALFlowConfig:
     ego_gate_evidence: bool = False
     eval_norm_stats: str = "running"
     eval_anchor: bool = False
+    eval_gate_k: int = 0
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -200,6 +206,10 @@ class HALFlowConfig:
             if getattr(self, name) and not (self.rigid_vote or self.eval_anchor):
                 raise ConfigError(f"model.{name} changes the rigid vote: it needs model.rigid_vote or "
                                   "model.eval_anchor")
+        if self.eval_gate_k < 0:
+            raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
+        if self.eval_gate_k and not self.eval_anchor:
+            raise ConfigError("model.eval_gate_k sets the anchor's gate at inference: it needs model.eval_anchor")
         if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.eval_anchor turns on the rigid vote and the L0 hold at inference: it needs "
                               "model.translation_vote, model.ego_head and model.l0_cost_volume true")
@@ -235,10 +245,18 @@ class HALFlowConfig:
         return cls(**fields)
 
     def at_inference(self) -> "HALFlowConfig":
-        """The switches an inference pass runs with: this config, with ``eval_anchor``'s three turned on."""
+        """The switches an inference pass runs with: this config, with ``eval_anchor``'s three turned on (and
+        the gate's neighbourhood of ``eval_gate_k``)."""
         if not self.eval_anchor:
             return self
-        return replace(self, **ANCHOR_SWITCHES)
+        return replace(self, **ANCHOR_SWITCHES, **({"ego_gate_k": self.eval_gate_k} if self.eval_gate_k else {}))
+
+    def without_anchor(self) -> "HALFlowConfig":
+        """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
+        ``eval_gate_k``, and ``rigid_vote_dense`` / ``rigid_vote_far`` where no rigid vote is left."""
+        keep_vote = self.rigid_vote
+        return replace(self, eval_anchor=False, eval_gate_k=0, rigid_vote_dense=self.rigid_vote_dense and keep_vote,
+                       rigid_vote_far=self.rigid_vote_far and keep_vote)
 
     @property
     def output_points(self) -> tuple[int, ...]:
