@@ -9,6 +9,9 @@ Laplacian eq. 14) at every pyramid level for a set of candidate flows of the sam
 * ``gt∘rigid``: the true flow followed by a wrong rigid motion (``rigid_deg`` about the camera's y axis
   and ``rigid_m`` along z, i.e. a misjudged ego-motion);
 * ``static``: the ego-motion's flow alone (what a method blind to movers would output);
+* ``movers×<s>``: the true flow with every point's departure from the ego-motion's flow scaled by s
+  (``sf_s + s (f − sf_s)``; static points keep the truth, movers move a fraction s of their own motion —
+  the form in which the demo preset's net gets movers wrong, docs/learned-flow.md, twenty-second round);
 * ``net`` (with a checkpoint): the net's own two passes.
 
 A candidate other than the net has ``f_o = f`` and ``f_d = f − sf_s`` (eq. 12 holds exactly, so its DS
@@ -53,6 +56,7 @@ class AuditConfig:
     pairs_max: audit at most this many pairs (evenly spread over the subset).
     n_points: points drawn per cloud (seeded); level_points: points of the 4 output levels, finest first.
     noise_m: σ of the Gaussian perturbations, metres per axis.
+    mover_scales: the fractions s of the ``movers×<s>`` candidates.
     rigid_deg / rigid_m: the wrong rigid motion (yaw degrees, forward metres).
     seed: draws of the points and of the noise.
     """
@@ -65,6 +69,7 @@ class AuditConfig:
     n_points: int = 2048
     level_points: tuple[int, ...] = (512, 256, 64, 16)  # the demo net's output levels at 2048 points
     noise_m: tuple[float, ...] = (0.05, 0.2)
+    mover_scales: tuple[float, ...] = (0.5,)
     rigid_deg: float = 1.0
     rigid_m: float = 0.2
     seed: int = 0
@@ -92,6 +97,8 @@ def candidate_flows(batch: FlowBatch, cfg: AuditConfig) -> dict[str, Tensor]:
     moved = (batch.pc1 + gt) @ T[:3, :3].T + T[:3, 3]
     out["gt∘rigid"] = moved - batch.pc1
     out["static"] = batch.static_flow
+    for s in cfg.mover_scales:
+        out[f"movers×{s:g}"] = batch.static_flow + s * (gt - batch.static_flow)
     return out
 
 

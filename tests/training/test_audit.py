@@ -33,13 +33,18 @@ def test_truth_has_the_lowest_weighted_loss_at_every_level(synth_cache, truncate
                                               laplacian_plane=plane, plane_where_held=held))
     rows = audit(cfg)
     by = {(r["candidate"], r["level"]): r for r in rows}
-    assert {c for c, _ in by} == {"gt", "gt+noise0.05", "gt+noise0.2", "gt∘rigid", "static"}
+    assert {c for c, _ in by} == {"gt", "gt+noise0.05", "gt+noise0.2", "gt∘rigid", "static", "movers×0.5"}
     for level in range(4):
         gt = by[("gt", level)]["weighted"]
         for wrong in ("gt+noise0.05", "gt+noise0.2", "gt∘rigid"):
             assert gt < by[(wrong, level)]["weighted"], (level, wrong, gt, by[(wrong, level)])
         # eq. 12 holds exactly for every non-net candidate (f_d = f − sf_s)
         assert by[("gt", level)]["ds"] == pytest.approx(0.0, abs=1e-9)
+    # movers moved half their own motion (the form of the preset's net's error, twenty-second round) lose to
+    # the truth and beat the ego-motion alone at the finest level: the objective asks for the whole motion.
+    # (Not under plane_where_held, whose loss form itself follows each candidate's departures.)
+    if not held:
+        assert by[("gt", 0)]["weighted"] < by[("movers×0.5", 0)]["weighted"] < by[("static", 0)]["weighted"]
     # the finest level separates the truth from a 5 cm perturbation clearly through the depth term
     assert by[("gt+noise0.05", 0)]["depth"] > 1.5 * by[("gt", 0)]["depth"]
 
