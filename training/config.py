@@ -117,6 +117,10 @@ class OptimConfig:
 
 
 
+FINEST_ONLY_TERMS = ("ego", "pull", "smooth")
+"""The departure terms :attr:`LossWeights.finest_only` can keep to the finest level."""
+
+
 @dataclass
 class LossWeights:
     """Weights and switches of the unsupervised loss.
@@ -201,6 +205,9 @@ class LossWeights:
         warped point. Where the gate lets a mover's own flow through, the pair counts point to point, which
         holds the mover's flow along its own surface (needs ``model.ego_head``; a departure;
         docs/learned-flow.md, sixteenth round). False = λ everywhere.
+    finest_only: departure terms counted at the finest level only, a comma list of ``ego`` (``ego_motion``),
+        ``pull`` (``gate_pull``) and ``smooth`` (``flow_smooth``); the coarser levels leave them out (an
+        ablation: docs/learned-flow.md, twenty-second round). Empty = every level.
     """
 
     beta: tuple[float, float, float, float] = (0.1, 0.1, 1.0, 0.3)
@@ -229,8 +236,12 @@ class LossWeights:
     laplacian_plane: float = 0.0
     flow_smooth: float = 0.0
     plane_where_held: bool = False
+    finest_only: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        self.finest_only = tuple(str(t) for t in self.finest_only)  # type: ignore[assignment]
+        if not set(self.finest_only) <= set(FINEST_ONLY_TERMS):
+            raise ConfigError(f"finest_only names terms of {FINEST_ONLY_TERMS}, got {self.finest_only}")
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
         self.alpha = tuple(float(a) for a in self.alpha)
         if len(self.beta) != 4:

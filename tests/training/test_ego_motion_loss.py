@@ -94,3 +94,18 @@ def test_the_ego_head_reports_a_rigid_flow_per_level_and_the_term_trains_it():
         opt.step()
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0]  # the term reaches the weights through the head's fit
+
+
+def test_finest_only_leaves_the_named_terms_out_of_the_coarser_levels():
+    """``loss.finest_only`` (an ablation, twenty-second round): the named departure terms count at L0 and
+    nowhere else; the rest of the loss is unchanged."""
+    w = dict(ego_motion=1.0, gate_pull=2.0, alpha=(0.02, 0.04))
+    full_total, full = multi_level_loss(_levels(with_gaps=True), LossWeights(**w))
+    kept_total, kept = multi_level_loss(_levels(with_gaps=True), LossWeights(**w, finest_only=("ego", "pull")))
+    # finest-first α under the released order: (0.04, 0.02); the coarse level loses α₁ (ego + 2 · pull)
+    dropped = 0.02 * (full["l1/ego"] + 2.0 * full["l1/pull"])
+    assert kept_total.item() == pytest.approx(full_total.item() - dropped, rel=1e-5)
+    assert "l0/ego" in kept and "l0/pull" in kept and "l1/ego" not in kept and "l1/pull" not in kept
+    assert kept["l0/weighted"] == pytest.approx(full["l0/weighted"], rel=1e-6)
+    with pytest.raises(ConfigError, match="finest_only"):
+        LossWeights(finest_only=("chamfer",))

@@ -144,6 +144,9 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
     logged: dict[str, Tensor] = {}
     for k, (level, alpha) in enumerate(zip(levels, alphas)):
         terms = level_terms(level, weights)
+        if k > 0:  # the departure terms kept to the finest level
+            for name in weights.finest_only:
+                terms.pop(name, None)
         weighted = sum((beta[name] * terms[name] for name in beta if name in terms), level.flow_o.new_zeros(()))
         if "anchor" in terms:
             weighted = weighted + weights.static_anchor * terms["anchor"]
