@@ -6,7 +6,7 @@ net's own config is the registered net's (:mod:`training.model.registry`, ``mode
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from core.errors import ConfigError
 from training.choices import (ALPHA_ORDERS, DEPTH_VARIANTS, PC2_TARGETS, SCHEDULES, AlphaOrder, DepthVariant, KnnBackend,
@@ -117,8 +117,8 @@ class OptimConfig:
 
 
 
-FINEST_ONLY_TERMS = ("ego", "pull", "smooth")
-"""The departure terms :attr:`LossWeights.finest_only` can keep to the finest level."""
+FINEST_ONLY_TERMS = {"ego": "ego_motion", "pull": "gate_pull", "smooth": "flow_smooth"}
+"""The departure terms :attr:`LossWeights.finest_only` can keep to the finest level, and their weights."""
 
 
 @dataclass
@@ -240,8 +240,8 @@ class LossWeights:
 
     def __post_init__(self) -> None:
         self.finest_only = tuple(str(t) for t in self.finest_only)  # type: ignore[assignment]
-        if not set(self.finest_only) <= set(FINEST_ONLY_TERMS):
-            raise ConfigError(f"finest_only names terms of {FINEST_ONLY_TERMS}, got {self.finest_only}")
+        if not set(self.finest_only) <= FINEST_ONLY_TERMS.keys():
+            raise ConfigError(f"finest_only names terms of {tuple(FINEST_ONLY_TERMS)}, got {self.finest_only}")
         self.beta = tuple(float(b) for b in self.beta)  # type: ignore[assignment]
         self.alpha = tuple(float(a) for a in self.alpha)
         if len(self.beta) != 4:
@@ -269,6 +269,12 @@ class LossWeights:
             raise ConfigError(f"laplacian_k and interp_k must be ≥ 1, got {self.laplacian_k}, {self.interp_k}")
         if self.pc2_target not in PC2_TARGETS:
             raise ConfigError(f"pc2_target must be one of {PC2_TARGETS}, got {self.pc2_target!r}")
+
+    def coarse(self) -> "LossWeights":
+        """The weights of the levels below the finest: these, with the ``finest_only`` terms' weights at 0."""
+        if not self.finest_only:
+            return self
+        return replace(self, finest_only=(), **{FINEST_ONLY_TERMS[t]: 0.0 for t in self.finest_only})
 
 
 @dataclass

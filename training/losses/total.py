@@ -142,11 +142,9 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
     beta = dict(zip(("depth", "ds", "chamfer", "laplacian"), weights.beta))
     total: Tensor | None = None
     logged: dict[str, Tensor] = {}
+    coarse = weights.coarse()  # the departure terms kept to the finest level are not computed below it
     for k, (level, alpha) in enumerate(zip(levels, alphas)):
-        terms = level_terms(level, weights)
-        if k > 0:  # the departure terms kept to the finest level
-            for name in weights.finest_only:
-                terms.pop(name, None)
+        terms = level_terms(level, weights if k == 0 else coarse)
         weighted = sum((beta[name] * terms[name] for name in beta if name in terms), level.flow_o.new_zeros(()))
         if "anchor" in terms:
             weighted = weighted + weights.static_anchor * terms["anchor"]
