@@ -13,8 +13,9 @@ the finest level (the coarse levels' flows never leave the camera's motion)::
 
 Needs a split with per-point ``moving`` and ``instance`` labels (this project's synthetic splits write both)
 and a net with an ego head (``model.ego_head``: its rigid flows). Clouds: camera frame of frame 1 (x right,
-y down, z forward), metres; each scene's clouds are drawn at ``--n-points`` with a fixed seed, as the fps
-protocol draws them, and the net's own level points are scored.
+y down, z forward), metres; each scene's clouds are drawn at ``--n-points`` by the fps protocol
+(:func:`evaluation.protocols.prepare_scene`, seed 0: the points ``monoflow-evaluate`` gives every method), and the
+net's own level points are scored.
 """
 
 from __future__ import annotations
@@ -88,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         import torch
 
         from evaluation.methods import NetMethod
+        from evaluation.protocols import ProtocolConfig, prepare_scene
         from evaluation.readers import load_split
 
         if args.threads:
@@ -96,18 +98,18 @@ def main(argv: list[str] | None = None) -> int:
         method = NetMethod(args.checkpoint, device="cpu", eval_anchor=anchor)
         print("| split | level | objects | points | own motion (m) | share taken (mean / median) | across (m) | "
               "movers' EPE3D (m) |\n|---|---|---|---|---|---|---|---|")
+        protocol = ProtocolConfig(protocol="fps", n_points=args.n_points, n_score=method.n_score).validate()
         for name, folder in args.split:
             split = load_split(folder, "auto")
-            rng = np.random.default_rng(0)
             per_level: dict[int, list[ObjectShare]] = {}
             for i in range(len(split)):
                 s = split[i]
                 if s.moving is None or s.instance is None:
                     raise ConfigError(f"{folder}: scene {s.name} has no moving/instance labels (mover_bias needs both)")
-                i1 = rng.choice(len(s.pc1), min(args.n_points, len(s.pc1)), replace=False)
-                i2 = rng.choice(len(s.pc2), min(args.n_points, len(s.pc2)), replace=False)
+                scene = prepare_scene(s, protocol, seed=0)
+                i1 = scene.index1
                 with torch.no_grad():
-                    out = method.net(torch.from_numpy(s.pc1[i1])[None], torch.from_numpy(s.pc2[i2])[None])
+                    out = method.net(torch.tensor(scene.pc1)[None], torch.tensor(scene.pc2)[None])  # copies: read-only
                 if not out.rigid_flows:
                     raise ConfigError(f"{args.checkpoint}: the net reports no rigid flow (mover_bias needs model.ego_head)")
                 for lvl in range(len(out.flows)):
