@@ -86,7 +86,8 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     h = vote_hypotheses(xyz1, xyz2, cfg.vote)
     B, K = h.t.shape[:2]
     # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
-    a = per_hypothesis(xyz1.detach().double(), K)
+    x1 = xyz1.detach().double()
+    a = per_hypothesis(x1, K)
     b = per_hypothesis((xyz2 if target is None else target).detach().double(), K)
     t0 = h.t.double().reshape(B * K, 3)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
@@ -113,7 +114,7 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     weights = None
     if cfg.range_weighted:
         o = xyz1.new_zeros(B, 3) if origin is None else origin
-        rng = (xyz1.detach().double() - o.double()[:, None]).norm(dim=-1)  # (B, M) metres from the camera
+        rng = (x1 - o.double()[:, None]).norm(dim=-1)  # (B, M) metres from the camera
         weights = per_hypothesis(rng, K)
     score = explained(a @ R.transpose(1, 2) + t[:, None], samples, per_hypothesis(h.spacing.double(), K),
                       weights).reshape(B, K)
