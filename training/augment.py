@@ -19,7 +19,9 @@ Two augmentations change the motion instead of the points kept: ``ego_speed_scal
 makes a pair look as if the camera had moved a factor faster or slower between t and t+1, so that the
 net meets camera speeds beyond the few the training sequences drove at; ``ego_turn_deg`` / ``ego_shift_m``
 (:func:`turn_shift_view`) turn and shift frame t's camera at random, so that the motion between the
-frames no longer follows the way the sequences drove. Another changes the street:
+frames no longer follows the way the sequences drove. ``synthetic_movers`` (:func:`synthetic_mover`) moves one
+object-sized cluster of frame t's points, so that it arrives where frame t+1 shows it from somewhere else: a
+mover of a speed and heading the world never drove, made from the pair's own points. Another changes the street:
 ``mirror`` (:func:`mirror_pair`) reflects a whole pair left–right, a street the world never drove (traffic
 on the other side, every turn the other way), with the depth map and intrinsics reflected to match.
 """
@@ -27,9 +29,17 @@ on the other side, every turn the other way), with the depth map and intrinsics 
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 RING_SPACING_DEG = (0.3, 0.5)
+MOVER_LINK_M = 0.8  # frame-t points closer than this belong to one cluster (single linkage)
+MOVER_MIN_POINTS = 8  # a cluster with fewer points is noise, not an object
+MOVER_MAX_EXTENT_M = 6.0  # a cluster longer than this along any axis is a wall or a row of things, not an object
+MOVER_MAX_SHARE = 0.1  # nor one that holds more than this share of the cloud
+MOVER_YAW_DEG = 5.0  # the moved cluster also turns about its vertical axis by up to this
 
 
 def ring_mask(points: np.ndarray, spacing_deg: float, phase: float, band: float) -> np.ndarray:
@@ -95,6 +105,53 @@ def turn_shift_view(rng: np.random.Generator, turn_deg: float, shift_m: float) -
     A[:3, :3] = Rotation.from_rotvec([0.0, np.radians(rng.uniform(-turn_deg, turn_deg)), 0.0]).as_matrix()
     A[[0, 2], 3] = rng.uniform(-shift_m, shift_m, size=2)
     return A
+
+
+def object_clusters(points: np.ndarray, link_m: float = MOVER_LINK_M, min_points: int = MOVER_MIN_POINTS,
+                    max_extent_m: float = MOVER_MAX_EXTENT_M, max_share: float = MOVER_MAX_SHARE) -> list[np.ndarray]:
+    """Object-sized clusters of ``points`` (N, 3), metres: the indices of each single-linkage component (points
+    chained by gaps shorter than ``link_m``) with at least ``min_points`` points, at most ``max_share`` of the
+    cloud and an axis-aligned extent of at most ``max_extent_m`` on every axis. Label-free: stage one has
+    removed the ground, so what stands on it falls apart into things (cars, poles, trunks) and long
+    structures (walls, fences), which the extent leaves out."""
+    n = len(points)
+    if n < min_points:
+        return []
+    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    out = []
+    for k in range(count):
+        idx = np.flatnonzero(label == k)
+        if not min_points <= len(idx) <= max_share * n:
+            continue
+        if (np.ptp(points[idx], axis=0) <= max_extent_m).all():
+            out.append(idx)
+    return out
+
+
+def synthetic_mover(rng: np.random.Generator, pc1: np.ndarray, motion_m: tuple[float, float],
+                    yaw_deg: float = MOVER_YAW_DEG) -> tuple[np.ndarray, np.ndarray] | None:
+    """One object-sized cluster of frame t's points (``pc1`` (N, 3), camera t: x right, y down, z forward,
+    metres; :func:`object_clusters`), drawn uniformly, and where it stood at time t had it moved: its points
+    (indices, (k, 3)) turned about the cluster's vertical axis through its centroid by an angle uniform in
+    ± ``yaw_deg`` degrees, then shifted back along a horizontal (x–z) heading drawn uniformly over the circle
+    by a length drawn uniformly in ``motion_m`` (metres per frame). Frame t+1 is not touched, so the points'
+    flow targets stay where they are: between the frames the cluster moves on its own by that much (the
+    inverse turn and shift), which the Chamfer and depth terms see and stage one's static flow does not. None
+    when the cloud has no such cluster."""
+    clusters = object_clusters(pc1)
+    if not clusters:
+        return None
+    idx = clusters[rng.integers(len(clusters))]
+    yaw = np.radians(rng.uniform(-yaw_deg, yaw_deg))
+    heading = rng.uniform(0.0, 2.0 * np.pi)
+    length = rng.uniform(*motion_m)
+    pts = pc1[idx].astype(np.float64)
+    centre = pts.mean(0)
+    R = Rotation.from_rotvec([0.0, yaw, 0.0]).as_matrix()
+    back = length * np.array([np.sin(heading), 0.0, np.cos(heading)])
+    return idx, (pts - centre) @ R.T + centre - back
 
 
 def draw_speed_scale(rng: np.random.Generator, low: float, high: float) -> float:

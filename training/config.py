@@ -57,6 +57,15 @@ class DataConfig:
     mirror: probability per training pair of reflecting it left–right (points, flows, the frame-(t+1)
         depth map and the intrinsics' principal point, :func:`training.augment.mirror_pair`): streets
         the training sequences never drove; 0 = off.
+    synthetic_movers: probability per training pair of one synthetic mover: an object-sized cluster of
+        frame t's sampled points (single-linkage gaps < 0.8 m, ≥ 8 points, ≤ 6 m on every axis; label-free) is
+        put back where it would have stood at time t had it driven on its own — a turn of up to ±5° about
+        its vertical axis and a horizontal shift along a heading drawn over the whole circle — while frame
+        t+1 and its depth map stay (:func:`training.augment.synthetic_mover`). The cluster's flow targets stay
+        where they were, its static flow is the camera's motion at its new place, so the Chamfer and depth
+        terms see a mover the static flow does not explain. The training world's movers all drive along its
+        roads at its speeds; these come at every heading and at speeds of ``synthetic_mover_m``; 0 = off.
+    synthetic_mover_m: (low, high), metres per frame: the synthetic mover's own displacement, drawn uniformly.
     """
 
     n_points: int = 8192
@@ -75,6 +84,8 @@ class DataConfig:
     ego_turn_deg: float = 0.0
     ego_shift_m: float = 0.0
     mirror: float = 0.0
+    synthetic_movers: float = 0.0
+    synthetic_mover_m: tuple[float, float] = (0.2, 2.0)
 
     def augment(self) -> dict:
         """The keyword arguments of :func:`training.augment.augment_masks` for training pairs."""

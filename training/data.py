@@ -18,7 +18,8 @@ from torch import Tensor
 from core import geometry
 from core.errors import ConfigError, InputError
 from pipeline.filters import FAR_LIMIT_M
-from training.augment import augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view, turn_shift_view
+from training.augment import (augment_masks, draw_speed_scale, mirror_pair, speed_scaled_view, synthetic_mover,
+                              turn_shift_view)
 
 _VAL_EPOCH = -1  # epoch tag of the fixed validation draw
 
@@ -143,7 +144,7 @@ class PairDataset(torch.utils.data.Dataset):
                  jitter_deg: float = 0.0, jitter_m: float = 0.0, fixed_epoch: int | None = None,
                  depth2_kept_only: bool = False, augment: dict | None = None,
                  ego_speed_scale: tuple[float, float] = (1.0, 1.0), ego_turn_shift: tuple[float, float] = (0.0, 0.0),
-                 mirror: float = 0.0,
+                 mirror: float = 0.0, movers: tuple[float, tuple[float, float]] = (0.0, (0.0, 0.0)),
                  target_draw: bool = False, view_masks: bool = False) -> None:
         self.reader = reader
         self.indices = list(indices)
@@ -157,6 +158,7 @@ class PairDataset(torch.utils.data.Dataset):
         self.ego_speed_scale = (float(ego_speed_scale[0]), float(ego_speed_scale[1]))
         self.ego_turn_shift = (float(ego_turn_shift[0]), float(ego_turn_shift[1]))  # (degrees, metres)
         self.mirror = float(mirror)
+        self.movers = (float(movers[0]), (float(movers[1][0]), float(movers[1][1])))  # (probability, metres)
         self.target_draw = target_draw  # also draw ``pc2_target`` (loss.pc2_target independent)
         self.view_masks = view_masks  # also give ``view1`` / ``view2`` (loss.view_mask)
         self.far = cache_far_limit(reader)  # "in view" means within the far limit this cache was built with
@@ -195,9 +197,23 @@ class PairDataset(torch.utils.data.Dataset):
             sf = pc1 + sf - moved  # the targets in frame t+1 stay where they were
             gt = None if gt is None else pc1 + gt - moved
             pc1 = moved
+        J = np.eye(4)
         if self.jitter_deg > 0 or self.jitter_m > 0:
             J = random_rigid(rng, self.jitter_deg, self.jitter_m)
             sf = (geometry.transform_points(J, (pc1 + sf).astype(np.float64)) - pc1).astype(np.float32)
+        moving = None if s.moving is None else np.asarray(s.moving)[c1].astype(bool)
+        if self.movers[0] > 0 and rng.random() < self.movers[0]:  # drawn only when on
+            made = synthetic_mover(rng, pc1, self.movers[1])
+            if made is not None:  # its targets stay; its static flow is the camera's motion at its new place
+                idx, at = made
+                camera = J @ np.asarray(s.T, np.float64) @ np.linalg.inv(A)  # frame t (as augmented) -> t+1
+                pc1 = pc1.copy()
+                if gt is not None:
+                    gt[idx] = pc1[idx] + gt[idx] - at
+                sf[idx] = geometry.transform_points(camera, at) - at
+                pc1[idx] = at
+                moving = np.zeros(len(pc1), bool) if moving is None else moving
+                moving[idx] = True
         if self.colour_features:
             f1 = s.rgb1[c1].astype(np.float32) / 255.0
             f2 = s.rgb2[c2].astype(np.float32) / 255.0
@@ -212,8 +228,8 @@ class PairDataset(torch.utils.data.Dataset):
                "index": np.int64(i)}
         if gt is not None:
             out["gt_flow"] = gt
-        if s.moving is not None:
-            out["moving"] = np.asarray(s.moving)[c1].astype(bool)
+        if moving is not None:
+            out["moving"] = moving
         if self.view_masks:
             size = depth2.shape
             out["view1"] = in_view(pc1 + sf, s.K, size, self.far)

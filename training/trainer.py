@@ -117,6 +117,11 @@ def check_config(cfg: TrainConfig) -> None:
         raise ConfigError(f"data.ego_turn_deg and data.ego_shift_m must be >= 0, got {d.ego_turn_deg}, {d.ego_shift_m}")
     if not 0 <= d.mirror <= 1:
         raise ConfigError(f"data.mirror is a probability in [0, 1], got {d.mirror}")
+    if not 0 <= d.synthetic_movers <= 1:
+        raise ConfigError(f"data.synthetic_movers is a probability in [0, 1], got {d.synthetic_movers}")
+    lengths = tuple(d.synthetic_mover_m)
+    if len(lengths) != 2 or not 0 <= lengths[0] <= lengths[1]:
+        raise ConfigError(f"data.synthetic_mover_m must be two lengths 0 <= low <= high (metres), got {d.synthetic_mover_m!r}")
     for name in ("log_every", "val_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be >= 1, got {getattr(cfg, name)}")
@@ -161,7 +166,8 @@ class Trainer:
                                      d.jitter_deg, d.jitter_m, depth2_kept_only=d.depth2_kept_only,
                                      augment=d.augment(), ego_speed_scale=d.ego_speed_scale,
                                      ego_turn_shift=(d.ego_turn_deg, d.ego_shift_m),
-                                     mirror=d.mirror, **loss_draws(cfg.loss))
+                                     mirror=d.mirror, movers=(d.synthetic_movers, d.synthetic_mover_m),
+                                     **loss_draws(cfg.loss))
         self.val_set = PairDataset(self.reader, self.val_idx, d.n_points, cfg.seed, d.colour_features,
                                    fixed_epoch=-1, depth2_kept_only=d.depth2_kept_only,
                                    **loss_draws(cfg.loss))

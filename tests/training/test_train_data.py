@@ -241,3 +241,47 @@ def test_mirror_is_checked(tiny_cache, tmp_path):  # noqa: F811
     cfg = tiny_config(tiny_cache, tmp_path / "bad", data={"mirror": 1.5})
     with pytest.raises(ConfigError, match="mirror"):
         Trainer(cfg)
+
+
+def test_synthetic_mover_keeps_targets_and_gives_the_camera_motion_at_its_new_place(tiny_cache, monkeypatch):  # noqa: F811
+    """With a synthetic mover (here a fixed cluster and shift, under the speed and turn augmentations): frame
+    t+1, its depth map and every point's flow target stay; the cluster's points are where the mover put them
+    and flagged moving; their static flow is the camera's motion at that place (the rigid motion that the
+    other points' static flow follows); off, nothing is drawn."""
+    import training.data as data
+
+    r = CacheReader(tiny_cache)
+    kw = dict(ego_speed_scale=(1.5, 1.5), ego_turn_shift=(2.0, 0.3))
+    plain = PairDataset(r, [3, 9], 256, seed=0, **kw)[1]
+    picked = np.arange(10, 40)
+
+    def fixed(rng, pc1, motion_m):
+        assert motion_m == (0.5, 1.5)
+        return picked, pc1[picked].astype(np.float64) + [0.7, 0.0, -0.4]
+
+    monkeypatch.setattr(data, "synthetic_mover", fixed)
+    moved = PairDataset(r, [3, 9], 256, seed=0, movers=(1.0, (0.5, 1.5)), **kw)[1]
+    for key in ("pc2", "depth2", "K"):
+        assert np.array_equal(plain[key], moved[key]), key
+    assert np.allclose(plain["pc1"] + plain["gt_flow"], moved["pc1"] + moved["gt_flow"], atol=1e-4)
+    assert np.allclose(moved["pc1"][picked], plain["pc1"][picked] + [0.7, 0.0, -0.4], atol=1e-5)
+    rest = np.setdiff1d(np.arange(256), picked)
+    assert np.array_equal(moved["pc1"][rest], plain["pc1"][rest])
+    assert moved["moving"][picked].all() and np.array_equal(moved["moving"][rest], plain["moving"][rest])
+    # the camera's motion, fitted to the untouched points' static flow, carries the moved points to their static target
+    a, b = moved["pc1"][rest].astype(np.float64), (moved["pc1"] + moved["static_flow"])[rest].astype(np.float64)
+    u, _, vt = np.linalg.svd((b - b.mean(0)).T @ (a - a.mean(0)))
+    R = u @ vt
+    t = b.mean(0) - a.mean(0) @ R.T
+    want = moved["pc1"][picked].astype(np.float64) @ R.T + t
+    assert np.allclose(moved["pc1"][picked] + moved["static_flow"][picked], want, atol=1e-4)
+    assert not np.allclose(moved["static_flow"][picked], plain["static_flow"][picked], atol=1e-3)  # the turn shows
+    off = PairDataset(r, [3, 9], 256, seed=0, movers=(0.0, (0.5, 1.5)), **kw)[1]
+    assert all(np.array_equal(plain[k], off[k]) for k in plain)
+
+
+def test_synthetic_movers_are_checked(tiny_cache, tmp_path):  # noqa: F811
+    with pytest.raises(ConfigError, match="synthetic_movers"):
+        Trainer(tiny_config(tiny_cache, tmp_path / "bad", data={"synthetic_movers": 1.5}))
+    with pytest.raises(ConfigError, match="synthetic_mover_m"):
+        Trainer(tiny_config(tiny_cache, tmp_path / "bad2", data={"synthetic_movers": 0.5, "synthetic_mover_m": (2.0, 1.0)}))
