@@ -6,7 +6,9 @@ under the inference anchor) splits into a part along ``d`` and a part across it.
 ``s = (f̄ − r̄) · d / ‖d‖²``, is 1 when the net moves the object all the way, 0 when it leaves it with the camera;
 the across part is metres of error no scaling explains. Used for docs/learned-flow.md (twenty-second round):
 on the demo world the preset's net takes about two thirds of its movers' motion at 500 steps, all of it at
-the finest level (the coarse levels' flows never leave the camera's motion)::
+the finest level (the coarse levels' flows never leave the camera's motion). With ``--by-heading`` each level's
+row is followed by one per heading class of the objects' own motion (``away`` from the camera, ``toward`` it,
+``crossing``; twenty-third round)::
 
     python -m benchmarks.mover_bias --checkpoint runs/pre-w0-s0/step_000500.pt \\
         --split own=w0/world/sceneflow/flownet3d --split shifted=w0/shifted/sceneflow/flownet3d
@@ -32,13 +34,25 @@ from core.errors import ConfigError, run_cli
 @dataclass(frozen=True)
 class ObjectShare:
     """One moving object at one level: its points, the length of its own motion ``‖d‖`` (m), the share of it
-    the net's flow takes along ``d``, the error across ``d`` of its mean flow (m) and its points' mean EPE (m)."""
+    the net's flow takes along ``d``, the error across ``d`` of its mean flow (m), its points' mean EPE (m) and
+    the heading of ``d`` in the ground plane (degrees, ``atan2(d_x, d_z)``: 0 = straight ahead, away from the
+    camera, ±180 = toward it, +90 = to the right)."""
 
     points: int
     motion_m: float
     share: float
     across_m: float
     epe_m: float
+    heading_deg: float = 0.0
+
+
+HEADINGS = ("away", "crossing", "toward")
+
+
+def heading_class(heading_deg: float) -> str:
+    """``away`` within 45° of straight ahead, ``toward`` within 45° of straight back, ``crossing`` otherwise."""
+    a = abs(heading_deg)
+    return "away" if a < 45.0 else "toward" if a > 135.0 else "crossing"
 
 
 def object_shares(flow: np.ndarray, rigid: np.ndarray, gt: np.ndarray, moving: np.ndarray,
@@ -60,7 +74,8 @@ def object_shares(flow: np.ndarray, rigid: np.ndarray, gt: np.ndarray, moving: n
         share = float(q @ d) / norm2
         across = float(np.linalg.norm(q - share * d))
         epe = float(np.linalg.norm(flow[sel] - gt[sel], axis=1).mean())
-        out.append(ObjectShare(int(sel.sum()), float(np.sqrt(norm2)), share, across, epe))
+        heading = float(np.degrees(np.arctan2(d[0], d[2])))
+        out.append(ObjectShare(int(sel.sum()), float(np.sqrt(norm2)), share, across, epe, heading))
     return out
 
 
@@ -83,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--eval-anchor", choices=("as-trained", "on", "off"), default="as-trained",
                    help="the net's inference anchor (model.eval_anchor)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    p.add_argument("--by-heading", action="store_true",
+                   help="after each level's row, one per heading class of the objects' own motion (away, crossing, toward)")
     args = p.parse_args(argv)
 
     def run(_argv=None) -> int:
@@ -119,12 +136,16 @@ def main(argv: list[str] | None = None) -> int:
                         out.flows[lvl][0].float().numpy(), out.rigid_flows[lvl][0].float().numpy(), s.flow[pts],
                         s.moving[pts], s.instance[pts]))
             for lvl, objects in sorted(per_level.items()):
-                r = summary(objects)
-                if not r["objects"]:
-                    print(f"| {name} | L{lvl} | 0 | 0 | | | | |")
-                    continue
-                print(f"| {name} | L{lvl} | {r['objects']} | {r['points']} | {r['motion_m']:.3f} | {r['share']:.2f} / "
-                      f"{r['share_median']:.2f} | {r['across_m']:.3f} | {r['epe_m']:.3f} |")
+                groups = [(f"L{lvl}", objects)]
+                if args.by_heading:
+                    groups += [(f"L{lvl} {h}", [o for o in objects if heading_class(o.heading_deg) == h]) for h in HEADINGS]
+                for label, group in groups:
+                    r = summary(group)
+                    if not r["objects"]:
+                        print(f"| {name} | {label} | 0 | 0 | | | | |")
+                        continue
+                    print(f"| {name} | {label} | {r['objects']} | {r['points']} | {r['motion_m']:.3f} | {r['share']:.2f} / "
+                          f"{r['share_median']:.2f} | {r['across_m']:.3f} | {r['epe_m']:.3f} |")
         return 0
 
     return run_cli(run)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.mover_bias import main, object_shares, summary
+from benchmarks.mover_bias import heading_class, main, object_shares, summary
 from testkit.flow_checkpoint import tiny_flow_checkpoint
 from testkit.rigid_scene import structured_scene
 
@@ -36,6 +36,10 @@ def test_half_the_motion_is_a_share_of_one_half_and_an_offset_across_is_metres()
     assert [o.across_m for o in objs] == pytest.approx([0.3, 0.3], abs=1e-5)
     held = object_shares(rigid, rigid, gt, moving, instance)  # left with the camera
     assert [o.share for o in held] == pytest.approx([0.0, 0.0], abs=1e-6)
+    assert [o.heading_deg for o in objs] == pytest.approx([90.0, 0.0])  # right, straight ahead
+    assert [heading_class(o.heading_deg) for o in objs] == ["crossing", "away"]
+    assert [heading_class(h) for h in (-44.0, 46.0, 134.0, 136.0, -179.0)] == ["away", "crossing", "crossing",
+                                                                            "toward", "toward"]
     r = summary(objs)
     assert r["objects"] == 2 and r["points"] == 20 and r["share_median"] == pytest.approx(1.0)
 
@@ -70,6 +74,12 @@ def test_the_table_has_a_row_per_split_and_level(tmp_path, capsys):
     assert [r.split("|")[2].strip() for r in rows] == ["L0", "L1", "L2", "L3"]
     epe = float(rows[0].split("|")[8])
     assert np.isfinite(epe) and epe >= 0
+    assert main(["--checkpoint", str(path), "--split", f"s={tmp_path / 'split'}", "--n-points", "256", "--by-heading"]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| s |")]
+    labels = [r.split("|")[2].strip() for r in rows]
+    assert labels[:4] == ["L0", "L0 away", "L0 crossing", "L0 toward"] and len(labels) == 16
+    by_class = {r.split("|")[2].strip(): int(r.split("|")[3]) for r in rows}
+    assert by_class["L0"] > 0 and by_class["L0 crossing"] == by_class["L0"] and by_class["L0 away"] == by_class["L0 toward"] == 0  # moves along y
 
 
 def test_a_split_without_labels_or_a_net_without_an_ego_head_is_one_line(tmp_path, capsys):
