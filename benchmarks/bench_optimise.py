@@ -67,9 +67,11 @@ def main(argv: list[str] | None = None) -> int:
             net = NetMethod(ckpt, device=dev, name="ours")
             pruned = view_pruned(net)
             polished = rigid_polished(pruned)  # the demo's "+ view pruning + rigid polish (+ refinement)" rows
-            methods = [net, pruned, polished, NSFPMethod(NSFPConfig(device=dev)),
+            direct = rigid_polished(net)  # the same without the second pass of the view pruning
+            methods = [net, pruned, polished, direct, NSFPMethod(NSFPConfig(device=dev)),
                        # the demo's settings: a registered ego-motion is refined with after_registration
                        RefinedMethod(polished, RefineConfig.after_registration(device=dev)),
+                       RefinedMethod(direct, RefineConfig.after_registration(device=dev)),
                        RefinedMethod(pruned, RefineConfig(device=dev))]
             for res, m in zip(run_protocol(split, methods, cfg, progress=False), methods):
                 last = getattr(m, "last", None)

@@ -28,6 +28,7 @@ from evaluation.optimise.config import RefineConfig
 from evaluation.optimise.loop import FitResult, minimise
 from evaluation.optimise.rigid import inlier_weights, robust_rigid_fit, so3_exp
 from evaluation.optimise.terms import geman_mcclure, laplacian_term, truncated_chamfer
+from training.pointops import surface_normals
 
 
 def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.ndarray | Tensor,
@@ -66,10 +67,12 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
             ego = (pts @ rot.T + (t0 + dt) - pts)[None]
             return ego + resid0 + mlp(p1), ego
 
+    normals2 = surface_normals(p2) if cfg.plane > 0 else None  # frame 2 does not move: once per scene
+
     def step() -> tuple[Tensor, Tensor]:
         flow, rigid = flows()
         warped = p1 + flow
-        loss = truncated_chamfer(warped, p2, cfg.truncate)
+        loss = truncated_chamfer(warped, p2, cfg.truncate, cfg.plane, normals2)
         if cfg.laplacian_weight > 0:
             loss = loss + cfg.laplacian_weight * laplacian_term(warped, p1, p2, cfg.laplacian_k)
         if cfg.rigid_weight > 0:

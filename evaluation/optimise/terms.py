@@ -14,12 +14,15 @@ from training.losses.chamfer import chamfer
 from training.losses.laplacian import laplacian
 
 
-def truncated_chamfer(p_warped: Tensor, pc2: Tensor, truncate: float = math.inf) -> Tensor:
+def truncated_chamfer(p_warped: Tensor, pc2: Tensor, truncate: float = math.inf, plane: float = 0.0,
+                      normals2: Tensor | None = None) -> Tensor:
     """``mean_p min(min_q ‖p − q‖², τ²) + mean_q min(min_p ‖p − q‖², τ²)``, m² (τ = ``truncate``, metres):
     :func:`training.losses.chamfer.chamfer` with its truncation. ``τ = inf`` is the paper's eq. 13; a
     finite τ is NSFP's: a point farther than τ from the other cloud adds a constant and no gradient, so
-    unmatched points (occlusion, field of view) stop dragging the flow."""
-    return chamfer(p_warped, pc2, truncate=truncate)
+    unmatched points (occlusion, field of view) stop dragging the flow. ``plane`` λ in [0, 1]: each pair
+    counts ``(1 − λ)`` of its squared distance and λ of its square along the frame-2 point's surface normal
+    (``normals2`` (B, M, 3) when given, else estimated), as the training loss's ``loss.chamfer_plane``."""
+    return chamfer(p_warped, pc2, truncate=truncate, plane=plane, normals2=normals2)
 
 
 def laplacian_term(p_warped: Tensor, pc1: Tensor, pc2: Tensor, k: int = 10) -> Tensor:

@@ -154,3 +154,29 @@ def test_bad_settings_are_config_errors() -> None:
         RefineConfig(parametrisation="nope").validate()
     with pytest.raises(ConfigError):
         NSFPConfig(truncate=0).validate()
+    with pytest.raises(ConfigError, match="plane"):
+        RefineConfig(plane=1.5).validate()
+
+
+def test_refinement_along_the_normals_keeps_a_flow_that_lies_on_frame_two_surfaces() -> None:
+    """Frame 2 is another sample of the same surfaces (as two LiDAR sweeps are), so the true flow ends between
+    its samples. From the truth, the point-to-point Chamfer pulls the points along the surfaces onto the
+    nearest samples; counted along the normals (``plane`` 1, after a registration) the truth stays put."""
+    rng = np.random.default_rng(3)
+
+    def surfaces(n: int) -> np.ndarray:  # road, two façades, camera frame (metres)
+        k = n // 3
+        return np.concatenate([np.c_[rng.uniform(-5, 6, k), np.full(k, 1.6), rng.uniform(4, 25, k)],
+                               np.c_[np.full(k, -5.0), rng.uniform(-3, 1.6, k), rng.uniform(4, 25, k)],
+                               np.c_[np.full(n - 2 * k, 6.0), rng.uniform(-3, 1.6, n - 2 * k), rng.uniform(4, 25, n - 2 * k)]])
+
+    R, t = rotation_y(0.02), np.array([0.05, 0.0, -0.8])
+    pc1 = surfaces(600).astype(np.float32)
+    pc2 = (surfaces(600) @ R.T + t).astype(np.float32)
+    gt = (pc1 @ R.T + t - pc1).astype(np.float32)
+    errors = {}
+    for plane in (0.0, 1.0):
+        cfg = RefineConfig.after_registration(plane=plane, iterations=60, patience=0, lr=1e-2)
+        errors[plane] = epe(refine_flow(pc1, pc2, gt, cfg).flow.numpy(), gt)
+    assert RefineConfig.after_registration().plane == 1.0
+    assert errors[1.0] < 0.5 * errors[0.0] and errors[1.0] < 0.05, errors
