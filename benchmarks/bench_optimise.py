@@ -1,5 +1,6 @@
 """Benchmark: time per scene of the label-free per-scene optimisation — the NSFP baseline, the rigid polish
-of the view-pruned net's flow and the test-time refinement of the polished and of the view-pruned flow
+of the view-pruned net's flow (and of the net's own, without the pruning's second pass) and the test-time
+refinement of the polished and of the view-pruned flow
 (evaluation/optimise, evaluation/rigid_polish.py, evaluation/view_prune.py) — through the
 real protocol (``run_protocol``: same sampled points for every method, one untimed warm-up call, then the
 mean over scenes), on CPU and, when one is present, on CUDA.
