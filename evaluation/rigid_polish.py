@@ -41,10 +41,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from core.clusters import radius_components
 from evaluation.baselines.base import apply_transform
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.view_prune import rigid_fit
@@ -142,9 +141,7 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
     free = p2[gap > cfg.static_scale_min]  # pc2 points the static scene does not explain
     if len(free) < cfg.cluster_min_points:
         return
-    pairs = cKDTree(p1[rest]).query_pairs(cfg.cluster_radius, output_type="ndarray")
-    links = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rest), len(rest)))
-    _, label = connected_components(links, directed=False)
+    label = radius_components(p1[rest], cfg.cluster_radius)
     free_tree = cKDTree(free)
     icp_cfg = ICPConfig(method="point_to_point", max_correspondence_distance=cfg.max_distance,
                         max_iterations=cfg.cluster_iterations, kernel="cauchy",

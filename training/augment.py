@@ -29,10 +29,9 @@ on the other side, every turn the other way), with the depth map and intrinsics 
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
+
+from core.clusters import radius_components
 
 RING_SPACING_DEG = (0.3, 0.5)
 MOVER_LINK_M = 0.8  # frame-t points closer than this belong to one cluster (single linkage)
@@ -117,11 +116,9 @@ def object_clusters(points: np.ndarray, link_m: float = MOVER_LINK_M, min_points
     n = len(points)
     if n < min_points:
         return []
-    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    count, label = connected_components(graph, directed=False)
+    label = radius_components(points, link_m)
     out = []
-    for k in range(count):
+    for k in range(label.max() + 1):
         idx = np.flatnonzero(label == k)
         if not min_points <= len(idx) <= max_share * n:
             continue
