@@ -207,7 +207,6 @@ class PairDataset(torch.utils.data.Dataset):
             if made is not None:  # its targets stay; its static flow is the camera's motion at its new place
                 idx, at = made
                 camera = J @ np.asarray(s.T, np.float64) @ np.linalg.inv(A)  # frame t (as augmented) -> t+1
-                pc1 = pc1.copy()
                 if gt is not None:
                     gt[idx] = pc1[idx] + gt[idx] - at
                 sf[idx] = geometry.transform_points(camera, at) - at
