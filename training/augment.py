@@ -31,13 +31,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from core.clusters import radius_components
+from core.clusters import object_clusters
 
 RING_SPACING_DEG = (0.3, 0.5)
-MOVER_LINK_M = 0.8  # frame-t points closer than this belong to one cluster (single linkage)
-MOVER_MIN_POINTS = 8  # a cluster with fewer points is noise, not an object
-MOVER_MAX_EXTENT_M = 6.0  # a cluster longer than this along any axis is a wall or a row of things, not an object
-MOVER_MAX_SHARE = 0.1  # nor one that holds more than this share of the cloud
 MOVER_YAW_DEG = 5.0  # the moved cluster also turns about its vertical axis by up to this
 
 
@@ -104,27 +100,6 @@ def turn_shift_view(rng: np.random.Generator, turn_deg: float, shift_m: float) -
     A[:3, :3] = Rotation.from_rotvec([0.0, np.radians(rng.uniform(-turn_deg, turn_deg)), 0.0]).as_matrix()
     A[[0, 2], 3] = rng.uniform(-shift_m, shift_m, size=2)
     return A
-
-
-def object_clusters(points: np.ndarray, link_m: float = MOVER_LINK_M, min_points: int = MOVER_MIN_POINTS,
-                    max_extent_m: float = MOVER_MAX_EXTENT_M, max_share: float = MOVER_MAX_SHARE) -> list[np.ndarray]:
-    """Object-sized clusters of ``points`` (N, 3), metres: the indices of each single-linkage component (points
-    chained by gaps shorter than ``link_m``) with at least ``min_points`` points, at most ``max_share`` of the
-    cloud and an axis-aligned extent of at most ``max_extent_m`` on every axis. Label-free: stage one has
-    removed the ground, so what stands on it falls apart into things (cars, poles, trunks) and long
-    structures (walls, fences), which the extent leaves out."""
-    n = len(points)
-    if n < min_points:
-        return []
-    label = radius_components(points, link_m)
-    out = []
-    for k in range(label.max() + 1):
-        idx = np.flatnonzero(label == k)
-        if not min_points <= len(idx) <= max_share * n:
-            continue
-        if (np.ptp(points[idx], axis=0) <= max_extent_m).all():
-            out.append(idx)
-    return out
 
 
 def synthetic_mover(rng: np.random.Generator, pc1: np.ndarray, motion_m: tuple[float, float],

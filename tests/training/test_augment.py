@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.augment import augment_masks, object_clusters, ring_mask, synthetic_mover
+from _street import street
+from training.augment import augment_masks, ring_mask, synthetic_mover
 
 
 def _cloud(n=20000, seed=0):
@@ -78,32 +79,10 @@ def test_draw_speed_scale_is_log_uniform_and_off_draws_nothing():
     assert abs((s < 1.0).mean() - 0.5) < 0.04
 
 
-def _street(rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Two car-sized boxes of points (0.5 m grids, jittered) 10 m apart, a 30 m wall and two stray points
-    (camera frame, metres); the indices of the boxes."""
-    grid = np.stack(np.meshgrid(np.arange(0, 2.01, 0.5), np.arange(-1.5, 0.01, 0.5), np.arange(0, 4.01, 0.5),
-                                indexing="ij"), -1).reshape(-1, 3)  # 5 x 4 x 9 = 180 points
-    box1 = grid + [-1, 0, 9] + rng.uniform(-0.05, 0.05, grid.shape)
-    box2 = grid[::2] + [6, 0, 20] + rng.uniform(-0.05, 0.05, grid[::2].shape)
-    wall = np.column_stack([np.full(2000, -6.0), rng.uniform(-3, 0, 2000), rng.uniform(0, 30, 2000)])
-    stray = np.array([[20.0, -1.0, 40.0], [-20.0, -1.0, 45.0]])
-    pts = np.concatenate([box1, box2, wall, stray])
-    return pts, [np.arange(180), np.arange(180, 270)]
-
-
-def test_object_clusters_are_the_object_sized_components():
-    """Single-linkage components: the boxes are found whole; the wall (longer than 6 m) and lone points are not."""
-    pts, boxes = _street(np.random.default_rng(0))
-    found = sorted(object_clusters(pts), key=len, reverse=True)
-    assert [sorted(c.tolist()) for c in found] == [b.tolist() for b in boxes]
-    assert max(len(c) for c in object_clusters(pts, max_extent_m=40.0, max_share=1.0)) == 2000  # the wall, when allowed
-    assert object_clusters(pts[:5]) == []
-
-
 def test_synthetic_mover_moves_one_cluster_rigidly_along_the_ground():
     """The moved cluster is one of the objects, turned by at most 5° about the vertical through its centroid
     and shifted horizontally by a length in the drawn range; no cluster, no mover."""
-    pts, boxes = _street(np.random.default_rng(1))
+    pts, boxes = street(np.random.default_rng(1))
     for seed in range(20):
         idx, at = synthetic_mover(np.random.default_rng(seed), pts, (0.5, 1.5))
         assert any(np.array_equal(np.sort(idx), b) for b in boxes)
