@@ -26,6 +26,17 @@ usable around any method, combines the two:
    method's own guess of the object's motion). A cluster takes its rigid flow when more than
    ``cluster_min_fitness`` of its points then land within ``static_scale_min`` of those pc2 points; else
    it keeps the method's flow. Cars, cyclists and pedestrians move rigidly from one frame to the next.
+6. (``rigid_objects``) every object-sized cluster of frame 1 (:func:`core.clusters.object_clusters`: a
+   single-linkage component no longer than ``object_max_extent`` on any axis, of at most
+   ``object_max_share`` of the cloud — things, not walls) moves rigidly: it takes the ego-motion's rotation
+   and the median translation of the flow so far (one point that snapped onto a wrong surface, or a part
+   of a mover that step 4 took for static, follows the rest of its object). Then a two-way point-to-point
+   ICP (:class:`evaluation.baselines.icp.ICPConfig` ``two_way``) registers the cluster onto the pc2 points
+   that the rest of the static scene does not explain, started at that motion; the fit replaces it when
+   its score — the mean distance (truncated at ``static_scale_min``) from the moved cluster to those points
+   plus the mean from those of them within ``max_distance`` back to the moved cluster — is below
+   ``(1 − object_margin)`` times the median motion's score. The reverse half is what sees a car that slid
+   along itself (step 4's blind spot): the points of its new front end that nothing explains.
 
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
@@ -43,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.clusters import radius_components
+from core.clusters import object_clusters, radius_components
 from evaluation.baselines.base import apply_transform
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.view_prune import rigid_fit
@@ -69,7 +80,13 @@ class RigidPolishConfig:
     cluster_min_points: smaller clusters keep the method's flow.
     cluster_iterations: ICP iterations at most per cluster (point-to-point, Cauchy-weighted).
     cluster_min_fitness: share of a cluster's points that must land on unexplained pc2 points for the
-        cluster to take its rigid flow."""
+        cluster to take its rigid flow.
+    rigid_objects: make every object-sized cluster of frame 1 move rigidly and try a two-way fit for it
+        (step 6 of the module docstring); false = steps 1–5 only (the fifth round's polish).
+    object_max_extent: metres; a cluster longer than this along any axis is a wall or a row of things.
+    object_max_share: a cluster holding more than this share of the cloud is not an object.
+    object_margin: the two-way fit replaces the cluster's median motion when its score is below
+        (1 − object_margin) times that motion's score (0 = whenever lower)."""
 
     iterations: int = 20
     max_distance: float = 1.0
@@ -84,12 +101,18 @@ class RigidPolishConfig:
     cluster_min_points: int = 8
     cluster_iterations: int = 15
     cluster_min_fitness: float = 0.5
+    rigid_objects: bool = True
+    object_max_extent: float = 6.0
+    object_max_share: float = 0.1
+    object_margin: float = 0.4
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
             raise ValueError("iterations, fit_iterations and cluster_iterations must be >= 1, min_points >= 6")
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
+        if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
+            raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
                 and self.sigma > 0 and self.mad_factor >= 0):
             raise ValueError("max_distance, kernel_scale_min, static_scale_min and sigma must be > 0, "
@@ -127,6 +150,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     out[static] = (target - p1)[static]
     if cfg.objects:
         _polish_clusters(p1, p2, out, T, static, cfg)
+    if cfg.rigid_objects:
+        _rigid_objects(p1, p2, out, T, static, cfg)
     return out.astype(np.float32), T, static
 
 
@@ -157,6 +182,52 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
         dist, _ = free_tree.query(moved)
         if (dist < cfg.static_scale_min).mean() > cfg.cluster_min_fitness:
             flow[rows] = moved - pts
+
+
+def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig) -> float:
+    """How well ``moved`` (k, 3) lands on ``target`` (m, 3): mean distance from each moved point to the targets
+    plus the mean from the targets within ``max_distance`` of it back to it, both truncated at
+    ``static_scale_min`` (metres)."""
+    if len(target) == 0:
+        return 0.0
+    ahead = np.minimum(cKDTree(target).query(moved)[0], cfg.static_scale_min).mean()
+    back, _ = cKDTree(moved).query(target, distance_upper_bound=cfg.max_distance)
+    near = back[np.isfinite(back)]
+    return float(ahead + (np.minimum(near, cfg.static_scale_min).mean() if len(near) else 0.0))
+
+
+def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, static: np.ndarray,
+                   cfg: RigidPolishConfig) -> None:
+    """Step 6 of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1`` moves
+    rigidly, by the median motion or by its two-way fit onto the pc2 points the rest of the static scene does
+    not explain."""
+    objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
+                              cfg.object_max_share)
+    if not objects:
+        return
+    # each pc2 point's explaining static frame-1 point (-1: none within static_scale_min)
+    rows = np.flatnonzero(static)
+    owner = np.full(len(p2), -1)
+    if len(rows):
+        gap, near = cKDTree(apply_transform(T, p1[rows])).query(p2)
+        owner = np.where(gap < cfg.static_scale_min, rows[near], -1)
+    icp_cfg = ICPConfig(method="point_to_point", max_correspondence_distance=cfg.max_distance,
+                        max_iterations=cfg.cluster_iterations, kernel="cauchy",
+                        kernel_scale_min=cfg.kernel_scale_min, two_way=True)
+    member = np.zeros(len(p1), bool)
+    for idx in objects:
+        member[:] = False
+        member[idx] = True
+        target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself
+        pts = p1[idx]
+        median = T.copy()
+        median[:3, 3] += np.median(pts + flow[idx] - apply_transform(T, pts), axis=0)
+        moved = apply_transform(median, pts)
+        if len(target) >= cfg.cluster_min_points:
+            fitted = apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)
+            if _two_way_score(fitted, target, cfg) < (1 - cfg.object_margin) * _two_way_score(moved, target, cfg):
+                moved = fitted
+        flow[idx] = moved - pts
 
 
 class RigidPolished(MethodWrapper):

@@ -14,6 +14,13 @@ median absolute residual times 1.4826 estimates a Gaussian's σ robustly). Witho
 default and Open3D's behaviour) every pair within the distance limit counts fully, so a few wrong pairs,
 a moving car or points that have left the view, can pull the fit away.
 
+With ``two_way`` (point-to-point only) the pairs also run the other way: every pc2 point within the distance
+limit of the moved pc1 is paired with its nearest moved pc1 point. One-way pairs cannot see a surface that
+slides along itself — a car that drove less than its own length still lands on its own new surface, and
+each of its points is held where it is — while the pc2 points beyond its new front end pull the whole
+cloud forward (the reverse half of a Chamfer distance, what lets a per-scene Chamfer fit such as NSFP
+follow movers).
+
 It stops when the change of both fitness (inlier fraction) and inlier RMSE falls below ``tolerance``
 (Open3D's ``ICPConvergenceCriteria`` rule, defaults 1e-6 / 1e-6 / 30 iterations) or after
 ``max_iterations``. Distances in metres; the result maps pc1 (frame 1) onto pc2 (frame 2).
@@ -54,6 +61,8 @@ class ICPConfig:
         kernel: ``"none"`` (every pair within the limit counts fully) or ``"cauchy"`` (robust weights,
             module docstring).
         kernel_scale_min: metres; the smallest Cauchy scale (a residual of this size halves a pair's weight).
+        two_way: point-to-point only: also pair every pc2 point within ``max_correspondence_distance`` of the
+            moved pc1 with its nearest moved pc1 point (module docstring).
     """
 
     method: str = "point_to_point"
@@ -64,6 +73,7 @@ class ICPConfig:
     normal_radius: float | None = None
     kernel: str = "none"
     kernel_scale_min: float = 0.05
+    two_way: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -72,6 +82,8 @@ class ICPConfig:
             raise ValueError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
         if not self.kernel_scale_min > 0:
             raise ValueError(f"kernel_scale_min must be > 0, got {self.kernel_scale_min}")
+        if self.two_way and self.method != "point_to_point":
+            raise ValueError("two_way pairs need method='point_to_point'")
         if self.max_correspondence_distance <= 0 or self.max_iterations < 1:
             raise ValueError("max_correspondence_distance must be > 0 and max_iterations >= 1")
 
@@ -135,6 +147,10 @@ def icp(
             break
         if cfg.method == "point_to_point":
             a, b = src[inl], dst[idx[inl]]
+            if cfg.two_way:
+                back_dist, back = cKDTree(src).query(dst, distance_upper_bound=cfg.max_correspondence_distance)
+                near = np.isfinite(back_dist)
+                a, b = np.concatenate([a, src[back[near]]]), np.concatenate([b, dst[near]])
             w = None if scale_min is None else _cauchy_weights(np.linalg.norm(a - b, axis=1), scale_min)
             step: np.ndarray | None = kabsch(a, b, w)
         else:
