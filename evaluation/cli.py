@@ -19,6 +19,7 @@ Flags use the project's style (``--n_points``); the dashed spellings (``--n-poin
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -67,6 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint with its ego-motion and its movers' motions sharpened by robust "
                         "ICP started from its flow, as its own row '<net> + rigid polish' (evaluation/rigid_polish.py); "
                         "with --view-prune it polishes the view-pruned flow")
+    r.add_argument("--rigid-objects", default="on", choices=("on", "off"),
+                   help="the rigid polish's step 6 (RigidPolishConfig.rigid_objects): every object-sized cluster "
+                        "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
+                        "its row named '<net> + rigid polish (no object step)'")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
@@ -109,15 +114,19 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-def _stacked(net, wrappers: list[str]) -> list:
+def _stacked(net, wrappers: list[str], rigid_objects: bool = True) -> list:
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
-    polish + refinement')."""
+    polish + refinement'). ``rigid_objects`` false: the polish without its step 6, named so."""
     from evaluation.methods import make_method
 
     rows = [net]
     for w in wrappers:
-        rows.append(make_method(w, rows[-1]))
+        row = make_method(w, rows[-1])
+        if w == "rigid-polish" and not rigid_objects:
+            row.config = dataclasses.replace(row.config, rigid_objects=False)
+            row.name += " (no object step)"
+        rows.append(row)
     return rows
 
 
@@ -146,7 +155,6 @@ def protocol_title(cfg: ProtocolConfig, n_scenes: int, split: str, selection: di
 
 
 def _run(args) -> int:
-    import dataclasses
     import re
     import sys
 
@@ -201,7 +209,8 @@ def _run(args) -> int:
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
-        methods = [x for m in methods for x in (_stacked(m, wrappers) if any(m is n for n in nets) else [m])]
+        methods = [x for m in methods
+                   for x in (_stacked(m, wrappers, args.rigid_objects == "on") if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device

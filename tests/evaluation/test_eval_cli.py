@@ -334,3 +334,8 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     assert rows[3].config == RefineConfig.after_registration() and rows[3].config.rigid_lr == 0.0
     assert _stacked(net, ["view-prune", "refine"])[2].config == RefineConfig()
     assert [r.name for r in _stacked(net, ["refine"])] == ["zero", "zero + refinement"]
+    # --rigid-objects off: the polish without its step 6, named so; on (the default) keeps it
+    assert rows[2].config.rigid_objects
+    plain = _stacked(net, ["rigid-polish", "refine"], rigid_objects=False)
+    assert not plain[1].config.rigid_objects and plain[1].name == "zero + rigid polish (no object step)"
+    assert plain[2].base is plain[1] and plain[2].name == "zero + rigid polish (no object step) + refinement"
