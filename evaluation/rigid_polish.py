@@ -35,8 +35,11 @@ usable around any method, combines the two:
    that the rest of the static scene does not explain, started at that motion; the fit replaces it when
    its score — the mean distance (truncated at ``static_scale_min``) from the moved cluster to those points
    plus the mean from those of them within ``max_distance`` back to the moved cluster — is below
-   ``(1 − object_margin)`` times the median motion's score. The reverse half is what sees a car that slid
-   along itself (step 4's blind spot): the points of its new front end that nothing explains.
+   ``(1 − object_margin)`` times the median motion's score. The reverse half brings in the pc2 points near
+   the cluster that nothing explains, such as a car's new front end; a car that the method missed wholly
+   and that slid along itself is still not found (under the Cauchy weights the few pairs at its ends weigh
+   little, and the score cannot tell that motion from the camera's at this sampling density;
+   docs/learned-flow.md, twenty-fourth round).
 
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
@@ -129,8 +132,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
                cfg: RigidPolishConfig | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(flow_out (N, 3) float32, T (4, 4), static (N,) bool)``: ``flow`` (N, 3) at ``pc1`` (N, 3) with its
     ego-motion (and, with ``objects``, its movers' motions) polished against ``pc2`` (M, 3) (module
-    docstring); ``T`` maps camera 1 to camera 2 and ``static`` marks the points that took its rigid flow.
-    Metres."""
+    docstring); ``T`` maps camera 1 to camera 2 and ``static`` marks the points that took its rigid flow in
+    step 4 (step 6 may since have moved some of them with their object). Metres."""
     cfg = cfg or RigidPolishConfig()
     p1, p2 = np.asarray(pc1, np.float64), np.asarray(pc2, np.float64)
     f = np.asarray(flow, np.float64)
@@ -218,7 +221,8 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
     for idx in objects:
         member[:] = False
         member[idx] = True
-        target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself
+        target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself (owner −1
+        # reads member[-1], which the first test has already settled)
         pts = p1[idx]
         median = T.copy()
         median[:3, 3] += np.median(pts + flow[idx] - apply_transform(T, pts), axis=0)

@@ -15,11 +15,10 @@ default and Open3D's behaviour) every pair within the distance limit counts full
 a moving car or points that have left the view, can pull the fit away.
 
 With ``two_way`` (point-to-point only) the pairs also run the other way: every pc2 point within the distance
-limit of the moved pc1 is paired with its nearest moved pc1 point. One-way pairs cannot see a surface that
-slides along itself — a car that drove less than its own length still lands on its own new surface, and
-each of its points is held where it is — while the pc2 points beyond its new front end pull the whole
-cloud forward (the reverse half of a Chamfer distance, what lets a per-scene Chamfer fit such as NSFP
-follow movers).
+limit of the moved pc1 is paired with its nearest moved pc1 point (the reverse half of a Chamfer distance).
+One-way pairs hold a surface that slides along itself where it is — a car that drove less than its own
+length still lands on its own new surface — while the reverse pairs of the pc2 points beyond its new front
+end pull it forward; under the Cauchy kernel those few pairs weigh little, so the pull is weak.
 
 It stops when the change of both fitness (inlier fraction) and inlier RMSE falls below ``tolerance``
 (Open3D's ``ICPConvergenceCriteria`` rule, defaults 1e-6 / 1e-6 / 30 iterations) or after
