@@ -108,6 +108,28 @@ def test_cauchy_kernel_ignores_a_car_that_moves_on_its_own(method: str) -> None:
     assert errors["none"] > 2 * errors["cauchy"], errors
 
 
+def test_two_way_icp_step_also_pairs_each_near_target_point_with_its_nearest_source_point() -> None:
+    """One iteration of ``two_way`` is the Kabsch fit over the forward pairs (each source point, its nearest
+    target) and the reverse pairs (each target point within the limit, its nearest source point); the reverse
+    pairs reach the target points that no source point chooses, here a car's new front end."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    src = box_surface(rng, (0.5, 0.8, 12.0), (1.8, 1.6, 4.2), 150)
+    dst = box_surface(rng, (0.5, 0.8, 12.0), (1.8, 1.6, 4.2), 150) + [0.0, 0.0, 0.9]
+    step = icp(src, dst, ICPConfig(max_correspondence_distance=1.0, max_iterations=1, two_way=True)).transform
+    d_fwd, i_fwd = cKDTree(dst).query(src)
+    d_back, i_back = cKDTree(src).query(dst)
+    fwd, back = d_fwd < 1.0, d_back < 1.0
+    expected = kabsch(np.concatenate([src[fwd], src[i_back[back]]]), np.concatenate([dst[i_fwd[fwd]], dst[back]]))
+    np.testing.assert_allclose(step, expected, atol=1e-9)
+    one_way = icp(src, dst, ICPConfig(max_correspondence_distance=1.0, max_iterations=1)).transform
+    assert not np.allclose(step, one_way)
+    assert (~np.isin(np.flatnonzero(back), i_fwd[fwd])).sum() > 10  # target points only the reverse pairs reach
+    with pytest.raises(ValueError, match="two_way"):
+        ICPConfig(method="point_to_plane", two_way=True)
+
+
 def test_icp_config_rejects_unknown_method() -> None:
     with pytest.raises(ValueError, match="kernel"):
         ICPConfig(kernel="huber")

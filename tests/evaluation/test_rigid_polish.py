@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from evaluation.baselines.base import apply_transform, transform_error
-from evaluation.baselines.icp import ICPConfig
 from evaluation.rigid_polish import RigidPolishConfig, RigidPolished, polish_rigid
 from evaluation.methods import make_method
 from testkit.rigid_scene import SMALL, box_surface, motion, scene_pair
@@ -106,11 +105,6 @@ def test_rigid_objects_step_moves_a_car_with_the_majority_of_its_points(seed):
     err_old, err_new = (np.linalg.norm(f - truth, axis=1) for f in (old, new))
     assert err_old[is_car].mean() > 0.2 and err_new[is_car].mean() < 0.15, (err_old[is_car].mean(), err_new[is_car].mean())
     assert err_new[~is_car].mean() < 0.03 and err_new[~is_car].mean() <= err_old[~is_car].mean() + 0.002
-
-
-def test_two_way_pairs_need_point_to_point():
-    with pytest.raises(ValueError):
-        ICPConfig(method="point_to_plane", two_way=True)
 
 
 def test_too_few_points_agreeing_returns_the_method_flow():
