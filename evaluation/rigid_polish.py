@@ -151,36 +151,61 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     static = agree & _agreeing(dist, cfg)
     out = f.copy()
     out[static] = (target - p1)[static]
-    if cfg.objects:
-        _polish_clusters(p1, p2, out, T, static, cfg)
-    if cfg.rigid_objects:
-        _rigid_objects(p1, p2, out, T, static, cfg)
+    if cfg.objects or cfg.rigid_objects:
+        gap, owner = _explained(p1, p2, T, static, cfg)
+        if cfg.objects:
+            _polish_clusters(p1, p2, out, T, static, gap, cfg)
+        if cfg.rigid_objects:
+            _rigid_objects(p1, p2, out, T, owner, cfg)
     return out.astype(np.float32), T, static
 
 
+def _explained(p1: np.ndarray, p2: np.ndarray, T: np.ndarray, static: np.ndarray,
+               cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray]:
+    """For each pc2 point (M,): its distance to the nearest static frame-1 point moved by ``T`` (metres; inf
+    without static points) and that point's row in ``p1`` when nearer than ``static_scale_min``, else −1."""
+    rows = np.flatnonzero(static)
+    if not len(rows):
+        return np.full(len(p2), np.inf), np.full(len(p2), -1)
+    gap, near = cKDTree(apply_transform(T, p1[rows])).query(p2)
+    return gap, np.where(gap < cfg.static_scale_min, rows[near], -1)
+
+
+def _median_start(T: np.ndarray, pts: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """The ego-motion ``T`` plus the median disagreement with it of the flow ``flow`` (k, 3) at ``pts`` (k, 3): the
+    method's own guess of a cluster's rigid motion (4×4)."""
+    start = T.copy()
+    start[:3, 3] += np.median(pts + flow - apply_transform(T, pts), axis=0)
+    return start
+
+
+def _cluster_icp(cfg: RigidPolishConfig, two_way: bool = False) -> ICPConfig:
+    """The robust point-to-point ICP that registers one cluster (steps 5 and 6)."""
+    return ICPConfig(method="point_to_point", max_correspondence_distance=cfg.max_distance,
+                     max_iterations=cfg.cluster_iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min,
+                     two_way=two_way)
+
+
 def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, static: np.ndarray,
-                     cfg: RigidPolishConfig) -> None:
+                     gap: np.ndarray, cfg: RigidPolishConfig) -> None:
     """Step 5 of the module docstring, in place on ``flow`` (N, 3): each cluster of the non-static points
-    registered onto the pc2 points that the static scene moved by ``T`` does not explain."""
+    registered onto the pc2 points that the static scene moved by ``T`` does not explain (``gap`` (M,): each
+    pc2 point's distance to it, :func:`_explained`)."""
     rest = np.flatnonzero(~static)
     if len(rest) < cfg.cluster_min_points or not static.any():
         return
-    gap, _ = cKDTree(apply_transform(T, p1[static])).query(p2)
     free = p2[gap > cfg.static_scale_min]  # pc2 points the static scene does not explain
     if len(free) < cfg.cluster_min_points:
         return
     label = radius_components(p1[rest], cfg.cluster_radius)
     free_tree = cKDTree(free)
-    icp_cfg = ICPConfig(method="point_to_point", max_correspondence_distance=cfg.max_distance,
-                        max_iterations=cfg.cluster_iterations, kernel="cauchy",
-                        kernel_scale_min=cfg.kernel_scale_min)
+    icp_cfg = _cluster_icp(cfg)
     for c in np.unique(label):
         rows = rest[label == c]
         if len(rows) < cfg.cluster_min_points:
             continue
         pts = p1[rows]
-        start = T.copy()  # the ego-motion plus the cluster's median disagreement with it in the method's flow
-        start[:3, 3] += np.median(pts + flow[rows] - apply_transform(T, pts), axis=0)
+        start = _median_start(T, pts, flow[rows])
         moved = apply_transform(icp(pts, free, icp_cfg, init=start).transform, pts)
         dist, _ = free_tree.query(moved)
         if (dist < cfg.static_scale_min).mean() > cfg.cluster_min_fitness:
@@ -199,24 +224,16 @@ def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig
     return float(ahead + (np.minimum(near, cfg.static_scale_min).mean() if len(near) else 0.0))
 
 
-def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, static: np.ndarray,
+def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, owner: np.ndarray,
                    cfg: RigidPolishConfig) -> None:
     """Step 6 of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1`` moves
     rigidly, by the median motion or by its two-way fit onto the pc2 points the rest of the static scene does
-    not explain."""
+    not explain (``owner`` (M,): each pc2 point's explaining static row of ``p1``, or −1; :func:`_explained`)."""
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
                               cfg.object_max_share)
     if not objects:
         return
-    # each pc2 point's explaining static frame-1 point (-1: none within static_scale_min)
-    rows = np.flatnonzero(static)
-    owner = np.full(len(p2), -1)
-    if len(rows):
-        gap, near = cKDTree(apply_transform(T, p1[rows])).query(p2)
-        owner = np.where(gap < cfg.static_scale_min, rows[near], -1)
-    icp_cfg = ICPConfig(method="point_to_point", max_correspondence_distance=cfg.max_distance,
-                        max_iterations=cfg.cluster_iterations, kernel="cauchy",
-                        kernel_scale_min=cfg.kernel_scale_min, two_way=True)
+    icp_cfg = _cluster_icp(cfg, two_way=True)
     member = np.zeros(len(p1), bool)
     for idx in objects:
         member[:] = False
@@ -224,8 +241,7 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
         target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself (owner −1
         # reads member[-1], which the first test has already settled)
         pts = p1[idx]
-        median = T.copy()
-        median[:3, 3] += np.median(pts + flow[idx] - apply_transform(T, pts), axis=0)
+        median = _median_start(T, pts, flow[idx])
         moved = apply_transform(median, pts)
         if len(target) >= cfg.cluster_min_points:
             fitted = apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)
