@@ -249,6 +249,7 @@ def test_synthetic_mover_keeps_targets_and_gives_the_camera_motion_at_its_new_pl
     and flagged moving; their static flow is the camera's motion at that place (the rigid motion that the
     other points' static flow follows); off, nothing is drawn."""
     import training.data as data
+    from evaluation.baselines.base import apply_transform, kabsch
 
     r = CacheReader(tiny_cache)
     kw = dict(ego_speed_scale=(1.5, 1.5), ego_turn_shift=(2.0, 0.3))
@@ -269,11 +270,8 @@ def test_synthetic_mover_keeps_targets_and_gives_the_camera_motion_at_its_new_pl
     assert np.array_equal(moved["pc1"][rest], plain["pc1"][rest])
     assert moved["moving"][picked].all() and np.array_equal(moved["moving"][rest], plain["moving"][rest])
     # the camera's motion, fitted to the untouched points' static flow, carries the moved points to their static target
-    a, b = moved["pc1"][rest].astype(np.float64), (moved["pc1"] + moved["static_flow"])[rest].astype(np.float64)
-    u, _, vt = np.linalg.svd((b - b.mean(0)).T @ (a - a.mean(0)))
-    R = u @ vt
-    t = b.mean(0) - a.mean(0) @ R.T
-    want = moved["pc1"][picked].astype(np.float64) @ R.T + t
+    camera = kabsch(moved["pc1"][rest].astype(np.float64), (moved["pc1"] + moved["static_flow"])[rest].astype(np.float64))
+    want = apply_transform(camera, moved["pc1"][picked].astype(np.float64))
     assert np.allclose(moved["pc1"][picked] + moved["static_flow"][picked], want, atol=1e-4)
     assert not np.allclose(moved["static_flow"][picked], plain["static_flow"][picked], atol=1e-3)  # the turn shows
     off = PairDataset(r, [3, 9], 256, seed=0, movers=(0.0, (0.5, 1.5)), **kw)[1]
