@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the rigid polish's step 6 (RigidPolishConfig.rigid_objects): every object-sized cluster "
                         "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
                         "its row named '<net> + rigid polish (no object step)'")
+    r.add_argument("--ego-check", default="on", choices=("on", "off"),
+                   help="the rigid polish's step 1b (RigidPolishConfig.ego_check): the camera motion fitted to the "
+                        "net's flow weighed against the rigid vote's, by the range-weighted share of the scene each "
+                        "explains; off = the net's motion alone, its row named '<net> + rigid polish (no ego check)'")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
@@ -114,18 +118,23 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-def _stacked(net, wrappers: list[str], rigid_objects: bool = True) -> list:
+POLISH_OFF = {"rigid_objects": "no object step", "ego_check": "no ego check"}
+"""The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
+
+
+def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = ()) -> list:
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
-    polish + refinement'). ``rigid_objects`` false: the polish without its step 6, named so."""
+    polish + refinement'). ``polish_off``: :data:`POLISH_OFF` switches of the polish turned off, named so
+    ('<net> + rigid polish (no object step)')."""
     from evaluation.methods import make_method
 
     rows = [net]
     for w in wrappers:
         row = make_method(w, rows[-1])
-        if w == "rigid-polish" and not rigid_objects:
-            row.config = dataclasses.replace(row.config, rigid_objects=False)
-            row.name += " (no object step)"
+        if w == "rigid-polish" and polish_off:
+            row.config = dataclasses.replace(row.config, **{k: False for k in polish_off})
+            row.name += f" ({', '.join(POLISH_OFF[k] for k in polish_off)})"
         rows.append(row)
     return rows
 
@@ -209,8 +218,10 @@ def _run(args) -> int:
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
+        off = tuple(k for k, flag in (("rigid_objects", args.rigid_objects), ("ego_check", args.ego_check))
+                    if flag == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, args.rigid_objects == "on") if any(m is n for n in nets) else [m])]
+                   for x in (_stacked(m, wrappers, off) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device

@@ -9,6 +9,16 @@ usable around any method, combines the two:
 
 1. runs the method and fits one rigid motion ``T₀ = (R, t)`` to its flow robustly
    (:func:`evaluation.view_prune.rigid_fit`, IRLS with Cauchy weights);
+1b. (``ego_check``) weighs ``T₀`` against the camera motions that the rigid vote finds without the method
+   (:mod:`training.model.rigid_vote`): the vote's translation hypotheses, the fullest maxima of the same
+   histogram with each frame-1 point's pairs weighted by its range, and ``T₀`` itself, each refined by the
+   vote's trimmed rigid rounds on farthest-point samples against the whole pc2. Each is scored by the share
+   of frame-1 points, weighted by range, that land within ``static_scale_min`` of a pc2 point. When another
+   motion's share beats the refined ``T₀``'s by more than ``ego_check_margin``, it becomes ``T₀`` and the
+   method's flow is re-based onto it (``f + T_b p − T_a p``: what the method added to its own ego-motion
+   stays). In dense traffic the method's camera motion can be a near mover's (the net's pre-alignment
+   follows the vote, whose histogram the near, densely sampled movers can outvote): there the far static
+   scene, which such a motion leaves unexplained, decides (docs/learned-flow.md, twenty-fifth round);
 2. keeps the frame-1 points whose flow agrees with ``T₀`` (residual below
    ``max(static_scale_min, mad_factor · 1.4826 · median residual)``): the method's own guess of what is
    static;
@@ -89,7 +99,13 @@ class RigidPolishConfig:
     object_max_extent: metres; a cluster longer than this along any axis is a wall or a row of things.
     object_max_share: a cluster holding more than this share of the cloud is not an object.
     object_margin: the two-way fit replaces the cluster's median motion when its score is below
-        (1 − object_margin) times that motion's score (0 = whenever lower)."""
+        (1 − object_margin) times that motion's score (0 = whenever lower).
+    ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
+        rigid vote finds without it (step 1b of the module docstring); false = the method's alone.
+    ego_check_margin: another motion replaces the method's when its range-weighted share of explained
+        frame-1 points is more than (1 + this) times the method's.
+    ego_check_points: the vote and the trimmed rounds run on this many farthest-point samples of each cloud
+        (0 = every point)."""
 
     iterations: int = 20
     max_distance: float = 1.0
@@ -108,12 +124,17 @@ class RigidPolishConfig:
     object_max_extent: float = 6.0
     object_max_share: float = 0.1
     object_margin: float = 0.4
+    ego_check: bool = True
+    ego_check_margin: float = 0.05
+    ego_check_points: int = 512
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
             raise ValueError("iterations, fit_iterations and cluster_iterations must be >= 1, min_points >= 6")
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
+        if self.ego_check_margin < 0 or self.ego_check_points < 0:
+            raise ValueError("need ego_check_margin >= 0 and ego_check_points >= 0")
         if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
             raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
@@ -138,6 +159,9 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     p1, p2 = np.asarray(pc1, np.float64), np.asarray(pc2, np.float64)
     f = np.asarray(flow, np.float64)
     R, t = rigid_fit(p1, f, cfg.sigma, cfg.fit_iterations, cfg.mad_factor)
+    tree2 = cKDTree(p2) if len(p2) else None
+    if cfg.ego_check and tree2 is not None and len(p1) >= cfg.min_points:
+        f, R, t = _ego_check(p1, p2, tree2, f, R, t, cfg)
     init = np.eye(4)
     init[:3, :3], init[:3, 3] = R, t
     agree = _agreeing(np.linalg.norm(p1 + f - apply_transform(init, p1), axis=1), cfg)
@@ -147,7 +171,7 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
                         max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
     target = apply_transform(T, p1)
-    dist, _ = cKDTree(p2).query(target)
+    dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)
     out = f.copy()
     out[static] = (target - p1)[static]
@@ -158,6 +182,45 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         if cfg.rigid_objects:
             _rigid_objects(p1, p2, out, T, owner, cfg)
     return out.astype(np.float32), T, static
+
+
+def _explained_share(p1: np.ndarray, tree2: cKDTree, R: np.ndarray, t: np.ndarray, radius: float) -> float:
+    """The share of frame-1 points ``p1`` (N, 3), each weighted by its range from camera 1 (metres), whose
+    position moved by ``(R, t)`` has a frame-2 point (``tree2``) within ``radius`` metres."""
+    dist, _ = tree2.query(p1 @ R.T + t)
+    rng = np.linalg.norm(p1, axis=1)
+    return float((rng * (dist < radius)).sum() / max(rng.sum(), 1e-12))
+
+
+def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R: np.ndarray, t: np.ndarray,
+               cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1b of the module docstring: ``(flow, R, t)``, either the method's ``f`` (N, 3) and its fitted
+    motion ``(R, t)`` unchanged, or — when one of the rigid vote's motions explains clearly more of the
+    scene — that motion and ``f`` re-based onto it (``f + T_b p − T_a p``: what the method put on top of its
+    own ego-motion stays). Metres, camera frames."""
+    import torch
+
+    from training.model.rigid_vote import RigidVoteConfig, trimmed_rounds
+    from training.model.translation_vote import farthest_samples, histogram_peaks, vote_hypotheses
+
+    rc = RigidVoteConfig()
+    a = farthest_samples(torch.from_numpy(p1)[None].float(), cfg.ego_check_points)
+    b = farthest_samples(torch.from_numpy(p2)[None].float(), cfg.ego_check_points)
+    plain = vote_hypotheses(a, b, rc.vote).t[0]  # the vote's refined translations
+    far, _ = histogram_peaks(a, b, rc.vote, weights=a.norm(dim=-1))  # the far scene's, range-weighted
+    starts = torch.cat([torch.from_numpy(t)[None], plain.double(), far[0].double()])
+    H = len(starts)
+    rot = torch.eye(3, dtype=torch.float64).repeat(H, 1, 1)
+    rot[0] = torch.from_numpy(R)
+    a64, b64 = a.double().expand(H, -1, -1), torch.from_numpy(p2)[None].expand(H, -1, -1)
+    Rs, ts, _ = trimmed_rounds(a64, b64, rot, starts, rc)
+    Rs, ts = Rs.numpy(), ts.numpy()
+    share = [_explained_share(p1, tree2, Rs[k], ts[k], cfg.static_scale_min) for k in range(H)]
+    best = int(np.argmax(share))
+    if share[best] <= (1 + cfg.ego_check_margin) * share[0]:
+        return f, R, t
+    Rb, tb = Rs[best], ts[best]
+    return f + (p1 @ Rb.T + tb) - (p1 @ R.T + t), Rb, tb
 
 
 def _explained(p1: np.ndarray, p2: np.ndarray, T: np.ndarray, static: np.ndarray,

@@ -92,12 +92,14 @@ def _check(query: Tensor, ref: Tensor, k: int, backend: str) -> None:
 
 
 def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """(dist2, idx) from one cKDTree per batch element, computed on CPU in float64 (already exact and
-    sorted; squared and cast to ``query``'s dtype, which keeps the order)."""
+    """(dist2, idx) from one cKDTree per batch element (one for all when ``ref`` is one cloud expanded over the
+    batch, stride 0: the rigid vote's hypotheses), computed on CPU in float64 (already exact and sorted;
+    squared and cast to ``query``'s dtype, which keeps the order)."""
     from scipy.spatial import cKDTree
 
+    shared = ref.shape[0] > 1 and ref.stride(0) == 0  # one cloud for every batch element (an expanded view)
     q = query.detach().to("cpu", torch.float64).numpy()
-    r = ref.detach().to("cpu", torch.float64).numpy()
+    r = (ref[:1] if shared else ref).detach().to("cpu", torch.float64).numpy()
     if not (np.isfinite(q).all() and np.isfinite(r).all()):
         raise NonFiniteError("knn: non-finite point coordinates (NaN or inf) reached the neighbour search: the net "
                              "diverged (lower --optim.lr?) or its weights or inputs are not finite")
@@ -105,6 +107,12 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)
     workers = KDTREE_WORKERS if M * k >= PARALLEL_MIN_NEIGHBOURS else 1
+    if shared:  # one tree serves every batch element
+        many = KDTREE_WORKERS if B * M * k >= PARALLEL_MIN_NEIGHBOURS else 1
+        d, i = cKDTree(r[0]).query(q.reshape(B * M, -1), k=k, workers=many)
+        idx[:] = torch.from_numpy(i.reshape(B, M, k).astype("int64", copy=False))
+        dist2[:] = torch.from_numpy(d.reshape(B, M, k)).square_()
+        return dist2.to(query.device, query.dtype), idx.to(query.device)
     for b in range(B):
         d, i = cKDTree(r[b]).query(q[b], k=k, workers=workers)
         idx[b] = torch.from_numpy(i.reshape(M, k).astype("int64", copy=False))

@@ -336,6 +336,11 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     assert [r.name for r in _stacked(net, ["refine"])] == ["zero", "zero + refinement"]
     # --rigid-objects off: the polish without its step 6, named so; on (the default) keeps it
     assert rows[2].config.rigid_objects
-    plain = _stacked(net, ["rigid-polish", "refine"], rigid_objects=False)
+    plain = _stacked(net, ["rigid-polish", "refine"], ("rigid_objects",))
     assert not plain[1].config.rigid_objects and plain[1].name == "zero + rigid polish (no object step)"
     assert plain[2].base is plain[1] and plain[2].name == "zero + rigid polish (no object step) + refinement"
+    assert plain[1].config.ego_check and rows[2].config.ego_check
+    # --ego-check off (with --rigid-objects off too): both switches named
+    both = _stacked(net, ["rigid-polish"], ("rigid_objects", "ego_check"))[1]
+    assert not both.config.ego_check and not both.config.rigid_objects
+    assert both.name == "zero + rigid polish (no object step, no ego check)"

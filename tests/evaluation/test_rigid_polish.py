@@ -107,6 +107,52 @@ def test_rigid_objects_step_moves_a_car_with_the_majority_of_its_points(seed):
     assert err_new[~is_car].mean() < 0.03 and err_new[~is_car].mean() <= err_old[~is_car].mean() + 0.002
 
 
+EGO = motion(1.0, (0.0, 1.0, 0.0), (0.05, 0.0, -1.3))  # the camera drives 1.3 m forward and turns 1°
+
+
+def _truck_scene(seed: int):
+    """A street pair whose camera moved by EGO, plus a truck right ahead (2000 of the 5000 points of pc1) that
+    drives 1.2 m on its own, so that it hardly moves in the camera frame; and a method that locked onto the
+    truck: its flow is the truck's motion everywhere (the vote's failure on dense near traffic, twenty-fifth
+    round). Returns pc1, pc2, the true flow, the truck mask and that method's flow."""
+    pc1, pc2 = scene_pair(seed, 3000, EGO)
+    rng = np.random.default_rng(seed + 1)
+    own = EGO.copy()
+    own[:3, 3] += (0.0, 0.0, 1.2)
+    truck = box_surface(rng, (1.5, 0.3, 6.0), (2.5, 2.6, 6.0), 2000)
+    truck2 = apply_transform(own, box_surface(rng, (1.5, 0.3, 6.0), (2.5, 2.6, 6.0), 2000))
+    pc1, pc2 = np.concatenate([pc1, truck]), np.concatenate([pc2, truck2])
+    truth = apply_transform(EGO, pc1) - pc1
+    is_truck = np.arange(len(pc1)) >= 3000
+    truth[is_truck] = apply_transform(own, truck) - truck
+    return pc1, pc2, truth, is_truck, apply_transform(own, pc1) - pc1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ego_check_replaces_a_camera_motion_locked_onto_a_near_truck(seed):
+    """Step 1b: the range-weighted share of the scene that the truck's motion explains is far below the
+    camera's (the truck is near, the street far), so the rigid vote's motion replaces the method's and the
+    static scene is right again; without the check the polish refines the truck's motion."""
+    pc1, pc2, truth, is_truck, locked = _truck_scene(seed)
+    off, _, _ = polish_rigid(pc1, pc2, locked, RigidPolishConfig(ego_check=False))
+    on, T, _ = polish_rigid(pc1, pc2, locked)
+    err_off, err_on = (np.linalg.norm(f - truth, axis=1)[~is_truck].mean() for f in (off, on))
+    assert err_off > 0.5 and err_on < 0.05, (err_off, err_on)
+    rot_err, t_err = transform_error(T, EGO)
+    assert rot_err < 0.1 and t_err < 0.02, (rot_err, t_err)
+
+
+def test_ego_check_keeps_a_right_camera_motion():
+    """A method whose camera motion is right up to noise keeps it: the polish is the same with and without
+    the check."""
+    pc1, pc2, truth, is_car = _scene()
+    rough = _RoughNet(truth, is_car, pc1)
+    on = polish_rigid(pc1, pc2, rough(pc1, pc2))
+    off = polish_rigid(pc1, pc2, rough(pc1, pc2), RigidPolishConfig(ego_check=False))
+    np.testing.assert_array_equal(on[0], off[0])
+    np.testing.assert_array_equal(on[1], off[1])
+
+
 def test_too_few_points_agreeing_returns_the_method_flow():
     pc1, pc2, truth, _ = _scene()
     few = pc1[:20]
@@ -127,7 +173,8 @@ def test_wrapper_names_its_row_and_delegates():
 @pytest.mark.parametrize("field, value", [("iterations", 0), ("max_distance", 0.0), ("static_scale_min", -1.0),
                                           ("min_points", 3), ("mad_factor", -1.0), ("cluster_radius", 0.0),
                                           ("cluster_min_fitness", 1.0), ("cluster_iterations", 0),
-                                          ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0)])
+                                          ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0),
+                                          ("ego_check_margin", -0.1), ("ego_check_points", -1)])
 def test_config_refuses_impossible_settings(field, value):
     with pytest.raises(ValueError):
         RigidPolishConfig(**{field: value})

@@ -42,6 +42,21 @@ def test_against_brute_force(backend):
     assert_same_neighbours(d2, idx, bd2, bidx)
 
 
+def test_one_cloud_expanded_over_the_batch_gives_every_element_its_own_answer():
+    """A ref expanded over the batch (stride 0, the rigid vote's hypotheses) is searched with one KD-tree; the
+    answer is the one a contiguous copy gets, and each batch element keeps its own queries."""
+    g = torch.Generator().manual_seed(4)
+    cloud = torch.rand(1, 400, 3, generator=g, dtype=torch.float64) * 20.0
+    query = torch.rand(5, 90, 3, generator=g, dtype=torch.float64) * 20.0
+    shared = cloud.expand(5, -1, -1)
+    assert shared.stride(0) == 0
+    d_s, i_s = knn(query, shared, 4, "kdtree")
+    d_c, i_c = knn(query, shared.contiguous(), 4, "kdtree")
+    assert torch.equal(i_s, i_c) and torch.equal(d_s, d_c)
+    bd2, bidx = brute_force(query, shared, 4)
+    assert_same_neighbours(d_s, i_s, bd2, bidx)
+
+
 def test_backends_agree_far_from_origin_and_chunked():
     """Points 30 m away with cm spacing: the torch backend must centre before |a|²+|b|²-2ab."""
     g = torch.Generator().manual_seed(1)

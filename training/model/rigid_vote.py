@@ -71,6 +71,27 @@ class RigidVoteConfig:
             raise ValueError(f"need positive radii_m, rounds >= 1 and min_inliers >= 3, got {self}")
 
 
+def trimmed_rounds(a: Tensor, b: Tensor, R: Tensor, t: Tensor,
+                   cfg: RigidVoteConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """Step 2 of the module docstring for H starting motions at once: ``a`` (H, M, 3) onto ``b`` (H, P, 3),
+    started at ``R`` (H, 3, 3), ``t`` (H, 3), metres. Returns the fitted ``(R, t)`` and (H,) the inlier count
+    of the last round (a round with fewer than ``min_inliers`` inliers is not taken)."""
+    fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
+    count = torch.zeros(a.shape[0], dtype=a.dtype, device=a.device)
+    for radius in cfg.radii_m:
+        for _ in range(cfg.rounds):
+            d2, nn = knn(a @ R.transpose(1, 2) + t[:, None], b, 1)  # KD-tree on CPU, dense on CUDA
+            inlier = (d2[..., 0] < radius * radius).to(a.dtype)
+            nn = nn[..., 0]
+            count = inlier.sum(1)
+            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
+            R_new, t_new = fit(a, q, inlier)
+            ok = count >= cfg.min_inliers
+            R = torch.where(ok[:, None, None], R_new, R)
+            t = torch.where(ok[:, None], t_new, t)
+    return R, t, count
+
+
 @torch.no_grad()
 def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None,
                target: Tensor | None = None, origin: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -82,7 +103,6 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     run between ``xyz1`` and ``xyz2``. ``origin`` (B, 3): the camera's position in the clouds' frame, for
     ``range_weighted`` (default: the frame's origin; the net passes minus the centre it subtracted)."""
     cfg = config or RigidVoteConfig()
-    fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
     h = vote_hypotheses(xyz1, xyz2, cfg.vote)
     B, K = h.t.shape[:2]
     # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
@@ -91,19 +111,7 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     b = per_hypothesis((xyz2 if target is None else target).detach().double(), K)
     t0 = h.t.double().reshape(B * K, 3)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
-    R, t = eye.clone(), t0.clone()
-    count = torch.zeros(B * K, dtype=a.dtype, device=a.device)
-    for radius in cfg.radii_m:
-        for _ in range(cfg.rounds):
-            d2, nn = knn(a @ R.transpose(1, 2) + t[:, None], b, 1)  # KD-tree on CPU, dense on CUDA
-            inlier = (d2[..., 0] < radius * radius).to(a.dtype)
-            nn = nn[..., 0]
-            count = inlier.sum(1)
-            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
-            R_new, t_new = fit(a, q, inlier)  # a round with too few inliers is not taken (ok below)
-            ok = count >= cfg.min_inliers
-            R = torch.where(ok[:, None, None], R_new, R)
-            t = torch.where(ok[:, None], t_new, t)
+    R, t, count = trimmed_rounds(a, b, eye.clone(), t0.clone(), cfg)
     keep = count >= cfg.min_inliers  # else the hypothesis's translation alone
     R = torch.where(keep[:, None, None], R, eye)
     t = torch.where(keep[:, None], t, t0)

@@ -114,12 +114,16 @@ class VoteHypotheses(NamedTuple):
 
 
 @torch.no_grad()
-def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None) -> VoteHypotheses:
-    """Steps 1–2 of the module docstring and the scores of step 3, for frame-1 points ``xyz1`` (B, M, 3)
-    and frame-2 points ``xyz2`` (B, N, 3), metres (float32 results)."""
+def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None,
+                    weights: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Step 1 of the module docstring: the centres (B, K, 3) of the ``candidates`` fullest local maxima of the
+    smoothed histogram of the offsets ``q_j − p_i`` between ``xyz1`` (B, M, 3) and ``xyz2`` (B, N, 3), metres,
+    and (B,) whether any offset fell inside the search cube. ``weights`` (B, M): what each frame-1 point's
+    pairs count (default 1; e.g. its range, so that the sparse far scene is not outvoted by a dense near
+    mover)."""
     cfg = config or VoteConfig()
     x1, x2 = xyz1.detach().float(), xyz2.detach().float()
-    B = x1.shape[0]
+    B, N = x1.shape[0], x2.shape[1]
     d = (x2[:, None, :, :] - x1[:, :, None, :]).reshape(B, -1, 3)  # (B, M·N, 3) offsets q_j − p_i
     R, c = cfg.max_translation_m, cfg.cell_m
     n = int(round(2 * R / c))
@@ -129,7 +133,10 @@ def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     flat = torch.where(inside, flat, torch.zeros_like(flat))
     del d, cell
     counts = torch.zeros(B, n * n * n, dtype=x1.dtype, device=x1.device)
-    counts.scatter_add_(1, flat, inside.to(x1.dtype))
+    vote = inside.to(x1.dtype)
+    if weights is not None:
+        vote = vote * weights.detach().to(x1.dtype)[:, :, None].expand(-1, -1, N).reshape(B, -1)
+    counts.scatter_add_(1, flat, vote)
     grid = _binomial_blur(counts.reshape(B, n, n, n))
     peak = grid == torch.nn.functional.max_pool3d(grid[:, None], 3, stride=1, padding=1)[:, 0]
     score = torch.where(peak, grid, torch.full_like(grid, -1.0)).reshape(B, -1)
@@ -137,6 +144,18 @@ def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
     ix, iy, iz = best // (n * n), (best // n) % n, best % n
     t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
+    return t, inside.any(dim=1)
+
+
+@torch.no_grad()
+def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None) -> VoteHypotheses:
+    """Steps 1–2 of the module docstring and the scores of step 3, for frame-1 points ``xyz1`` (B, M, 3)
+    and frame-2 points ``xyz2`` (B, N, 3), metres (float32 results)."""
+    cfg = config or VoteConfig()
+    x1, x2 = xyz1.detach().float(), xyz2.detach().float()
+    B = x1.shape[0]
+    t, found = histogram_peaks(x1, x2, cfg)
+    k = t.shape[1]
     # every hypothesis against its own copy of the clouds, (B·k, ·, 3)
     a, b = per_hypothesis(x1, k), per_hypothesis(x2, k)
     t = _refine(a, b, t.reshape(B * k, 3), cfg.bandwidths_m)
@@ -144,7 +163,7 @@ def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
     spacing = self_d.min(dim=2).values.clamp_min(cfg.bandwidths_m[-1])
     matched = explained(a + t[:, None], b, per_hypothesis(spacing, k)).reshape(B, k)
-    return VoteHypotheses(t.reshape(B, k, 3), matched, spacing, inside.any(dim=1))
+    return VoteHypotheses(t.reshape(B, k, 3), matched, spacing, found)
 
 
 @torch.no_grad()
