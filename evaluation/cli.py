@@ -73,9 +73,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
                         "its row named '<net> + rigid polish (no object step)'")
     r.add_argument("--ego-check", default="on", choices=("on", "off"),
-                   help="the rigid polish's step 1b (RigidPolishConfig.ego_check): the camera motion fitted to the "
-                        "net's flow weighed against the rigid vote's, by the range-weighted share of the scene each "
-                        "explains; off = the net's motion alone, its row named '<net> + rigid polish (no ego check)'")
+                   help="the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
+                        "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
+                        "the scene refused, both by the range-weighted share of frame-1 points explained; off = the "
+                        "net's motion and its registration as they come, the row named '<net> + rigid polish (no ego "
+                        "check)'")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "

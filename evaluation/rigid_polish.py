@@ -24,6 +24,10 @@ usable around any method, combines the two:
    static;
 3. registers them onto pc2 by point-to-plane ICP with Cauchy weights, started at ``T₀``
    (:func:`evaluation.baselines.icp.icp`, ``kernel="cauchy"``, ``max_distance`` as the pair limit);
+3b. (``ego_check``) keeps step 1b's motion instead when the registered one explains less of the scene — its
+   range-weighted share below ``(1 − ego_check_margin)`` times step 1b's: on a street whose walls run along
+   the camera's path, the point-to-plane pairs hardly hold the motion along it, and a registration can slide
+   with the traffic ahead (docs/learned-flow.md, twenty-fifth round);
 4. a frame-1 point takes the rigid flow ``T p − p`` when both say it moves with the camera: the method
    (it was kept in step 2) and the geometry (its polished target ``T p`` lands on pc2: the nearest pc2
    point is closer than ``max(static_scale_min, mad_factor · 1.4826 · median distance)``). The others —
@@ -101,9 +105,12 @@ class RigidPolishConfig:
     object_margin: the two-way fit replaces the cluster's median motion when its score is below
         (1 − object_margin) times that motion's score (0 = whenever lower).
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
-        rigid vote finds without it (step 1b of the module docstring); false = the method's alone.
+        rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
+        than the motion so chosen (steps 1b and 3b of the module docstring); false = the method's motion and
+        its registration as they come.
     ego_check_margin: another motion replaces the method's when its range-weighted share of explained
-        frame-1 points is more than (1 + this) times the method's.
+        frame-1 points is more than (1 + this) times the method's; the registration is refused when its share
+        is below (1 − this) times that motion's.
     ego_check_points: the vote and the trimmed rounds run on this many farthest-point samples of each cloud
         (0 = every point)."""
 
@@ -160,8 +167,9 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     f = np.asarray(flow, np.float64)
     R, t = rigid_fit(p1, f, cfg.sigma, cfg.fit_iterations, cfg.mad_factor)
     tree2 = cKDTree(p2) if len(p2) else None
+    checked = None  # step 1b's refined motion (4, 4) and its explained share
     if cfg.ego_check and tree2 is not None and len(p1) >= cfg.min_points:
-        f, R, t = _ego_check(p1, p2, tree2, f, R, t, cfg)
+        f, R, t, checked = _ego_check(p1, p2, tree2, f, R, t, cfg)
     init = np.eye(4)
     init[:3, :3], init[:3, 3] = R, t
     agree = _agreeing(np.linalg.norm(p1 + f - apply_transform(init, p1), axis=1), cfg)
@@ -170,6 +178,9 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     icp_cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=cfg.max_distance,
                         max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
+    if checked is not None and (_explained_share(p1, tree2, T[:3, :3], T[:3, 3], cfg.static_scale_min)
+                                < (1 - cfg.ego_check_margin) * checked[1]):
+        T = checked[0]  # step 3b: the registration slid away from what explains the scene
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)
@@ -193,11 +204,12 @@ def _explained_share(p1: np.ndarray, tree2: cKDTree, R: np.ndarray, t: np.ndarra
 
 
 def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R: np.ndarray, t: np.ndarray,
-               cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 1b of the module docstring: ``(flow, R, t)``, either the method's ``f`` (N, 3) and its fitted
-    motion ``(R, t)`` unchanged, or — when one of the rigid vote's motions explains clearly more of the
-    scene — that motion and ``f`` re-based onto it (``f + T_b p − T_a p``: what the method put on top of its
-    own ego-motion stays). Metres, camera frames."""
+               cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, float]]:
+    """Step 1b of the module docstring: ``(flow, R, t, (T_chosen, share))``, either the method's ``f`` (N, 3)
+    and its fitted motion ``(R, t)`` unchanged, or — when one of the rigid vote's motions explains clearly
+    more of the scene — that motion and ``f`` re-based onto it (``f + T_b p − T_a p``: what the method put on
+    top of its own ego-motion stays); and the refined motion that won (4, 4) with its range-weighted explained
+    share, for step 3b. Metres, camera frames."""
     import torch
 
     from training.model.rigid_vote import RigidVoteConfig, trimmed_rounds
@@ -218,9 +230,13 @@ def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R:
     share = [_explained_share(p1, tree2, Rs[k], ts[k], cfg.static_scale_min) for k in range(H)]
     best = int(np.argmax(share))
     if share[best] <= (1 + cfg.ego_check_margin) * share[0]:
-        return f, R, t
+        best = 0
+    won = np.eye(4)
+    won[:3, :3], won[:3, 3] = Rs[best], ts[best]
+    if best == 0:
+        return f, R, t, (won, share[0])
     Rb, tb = Rs[best], ts[best]
-    return f + (p1 @ Rb.T + tb) - (p1 @ R.T + t), Rb, tb
+    return f + (p1 @ Rb.T + tb) - (p1 @ R.T + t), Rb, tb, (won, share[best])
 
 
 def _explained(p1: np.ndarray, p2: np.ndarray, T: np.ndarray, static: np.ndarray,

@@ -153,6 +153,29 @@ def test_ego_check_keeps_a_right_camera_motion():
     np.testing.assert_array_equal(on[1], off[1])
 
 
+def test_registration_that_slides_away_is_not_taken(monkeypatch):
+    """Step 3b: a point-to-plane registration that slid along the street (here made to, 1.5 m forward) explains
+    less of the scene than step 1b's motion, which is kept instead; without the check the slide stands."""
+    import evaluation.rigid_polish as rp
+
+    real_icp = rp.icp
+
+    def sliding_icp(src, dst, cfg, init=None):
+        out = real_icp(src, dst, cfg, init=init)
+        if cfg.method == "point_to_plane":
+            out.transform[2, 3] += 1.5
+        return out
+
+    monkeypatch.setattr(rp, "icp", sliding_icp)
+    pc1, pc2, truth, is_car = _scene()
+    rough = _RoughNet(truth, is_car, pc1)
+    _, T_off, _ = polish_rigid(pc1, pc2, rough(pc1, pc2), RigidPolishConfig(ego_check=False, objects=False))
+    _, T_on, _ = polish_rigid(pc1, pc2, rough(pc1, pc2), RigidPolishConfig(objects=False))
+    assert transform_error(T_off, SMALL)[1] > 1.0
+    rot_err, t_err = transform_error(T_on, SMALL)
+    assert rot_err < 0.2 and t_err < 0.05, (rot_err, t_err)
+
+
 def test_too_few_points_agreeing_returns_the_method_flow():
     pc1, pc2, truth, _ = _scene()
     few = pc1[:20]
