@@ -216,15 +216,16 @@ def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R:
     from training.model.translation_vote import farthest_samples, histogram_peaks, vote_hypotheses
 
     rc = RigidVoteConfig()
-    a = farthest_samples(torch.from_numpy(p1)[None].float(), cfg.ego_check_points)
-    b = farthest_samples(torch.from_numpy(p2)[None].float(), cfg.ego_check_points)
+    cloud2 = torch.tensor(p2)[None]  # copies: the caller's arrays may be read-only
+    a = farthest_samples(torch.tensor(p1, dtype=torch.float32)[None], cfg.ego_check_points)
+    b = farthest_samples(cloud2.float(), cfg.ego_check_points)
     plain = vote_hypotheses(a, b, rc.vote).t[0]  # the vote's refined translations
     far, _ = histogram_peaks(a, b, rc.vote, weights=a.norm(dim=-1))  # the far scene's, range-weighted
     starts = torch.cat([torch.from_numpy(t)[None], plain.double(), far[0].double()])
     H = len(starts)
     rot = torch.eye(3, dtype=torch.float64).repeat(H, 1, 1)
     rot[0] = torch.from_numpy(R)
-    a64, b64 = a.double().expand(H, -1, -1), torch.from_numpy(p2)[None].expand(H, -1, -1)
+    a64, b64 = a.double().expand(H, -1, -1), cloud2.expand(H, -1, -1)
     Rs, ts, _ = trimmed_rounds(a64, b64, rot, starts, rc)
     Rs, ts = Rs.numpy(), ts.numpy()
     share = [_explained_share(p1, tree2, Rs[k], ts[k], cfg.static_scale_min) for k in range(H)]
