@@ -217,8 +217,11 @@ def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R:
 
     rc = RigidVoteConfig()
     cloud2 = torch.tensor(p2)[None]  # copies: the caller's arrays may be read-only
-    a = farthest_samples(torch.tensor(p1, dtype=torch.float32)[None], cfg.ego_check_points)
-    b = farthest_samples(cloud2.float(), cfg.ego_check_points)
+    cloud1 = torch.tensor(p1, dtype=torch.float32)[None]
+    if len(p1) == len(p2):  # both samples in one batched pass (the same samples, half the loop's steps)
+        a, b = farthest_samples(torch.cat([cloud1, cloud2.float()]), cfg.ego_check_points).split(1)
+    else:
+        a, b = (farthest_samples(c, cfg.ego_check_points) for c in (cloud1, cloud2.float()))
     plain = vote_hypotheses(a, b, rc.vote).t[0]  # the vote's refined translations
     far, _ = histogram_peaks(a, b, rc.vote, weights=a.norm(dim=-1))  # the far scene's, range-weighted
     starts = torch.cat([torch.from_numpy(t)[None], plain.double(), far[0].double()])
