@@ -166,19 +166,20 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     p1, p2 = np.asarray(pc1, np.float64), np.asarray(pc2, np.float64)
     f = np.asarray(flow, np.float64)
     R, t = rigid_fit(p1, f, cfg.sigma, cfg.fit_iterations, cfg.mad_factor)
-    tree2 = cKDTree(p2) if len(p2) else None
-    checked = None  # step 1b's refined motion (4, 4) and its explained share
-    if cfg.ego_check and tree2 is not None and len(p1) >= cfg.min_points:
-        f, R, t, checked = _ego_check(p1, p2, tree2, f, R, t, cfg)
     init = np.eye(4)
     init[:3, :3], init[:3, 3] = R, t
+    tree2 = cKDTree(p2) if len(p2) else None
+    ranges = np.linalg.norm(p1, axis=1)  # metres from camera 1: the weights of the explained share (1b, 3b)
+    checked = None  # step 1b's refined motion (4, 4) and its explained share
+    if cfg.ego_check and tree2 is not None and len(p1) >= cfg.min_points:
+        f, init, checked = _ego_check(p1, p2, tree2, ranges, f, init, cfg)
     agree = _agreeing(np.linalg.norm(p1 + f - apply_transform(init, p1), axis=1), cfg)
     if agree.sum() < cfg.min_points or len(p2) < 6:
         return f.astype(np.float32), init, np.zeros(len(p1), bool)
     icp_cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=cfg.max_distance,
                         max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
-    if checked is not None and (_explained_share(p1, tree2, T[:3, :3], T[:3, 3], cfg.static_scale_min)
+    if checked is not None and (_explained_share(p1, ranges, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):
         T = checked[0]  # step 3b: the registration slid away from what explains the scene
     target = apply_transform(T, p1)
@@ -195,18 +196,17 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     return out.astype(np.float32), T, static
 
 
-def _explained_share(p1: np.ndarray, tree2: cKDTree, R: np.ndarray, t: np.ndarray, radius: float) -> float:
-    """The share of frame-1 points ``p1`` (N, 3), each weighted by its range from camera 1 (metres), whose
-    position moved by ``(R, t)`` has a frame-2 point (``tree2``) within ``radius`` metres."""
-    dist, _ = tree2.query(p1 @ R.T + t)
-    rng = np.linalg.norm(p1, axis=1)
-    return float((rng * (dist < radius)).sum() / max(rng.sum(), 1e-12))
+def _explained_share(p1: np.ndarray, ranges: np.ndarray, tree2: cKDTree, T: np.ndarray, radius: float) -> float:
+    """The share of frame-1 points ``p1`` (N, 3), each weighted by its range from camera 1 (``ranges`` (N,),
+    metres), whose position moved by ``T`` (4, 4) has a frame-2 point (``tree2``) within ``radius`` metres."""
+    dist, _ = tree2.query(apply_transform(T, p1))
+    return float((ranges * (dist < radius)).sum() / max(ranges.sum(), 1e-12))
 
 
-def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R: np.ndarray, t: np.ndarray,
-               cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, float]]:
-    """Step 1b of the module docstring: ``(flow, R, t, (T_chosen, share))``, either the method's ``f`` (N, 3)
-    and its fitted motion ``(R, t)`` unchanged, or — when one of the rigid vote's motions explains clearly
+def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, ranges: np.ndarray, f: np.ndarray,
+               T_a: np.ndarray, cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, float]]:
+    """Step 1b of the module docstring: ``(flow, T₀, (T_chosen, share))``, either the method's ``f`` (N, 3)
+    and its fitted motion ``T_a`` (4, 4) unchanged, or — when one of the rigid vote's motions explains clearly
     more of the scene — that motion and ``f`` re-based onto it (``f + T_b p − T_a p``: what the method put on
     top of its own ego-motion stays); and the refined motion that won (4, 4) with its range-weighted explained
     share, for step 3b. Metres, camera frames."""
@@ -224,23 +224,20 @@ def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, f: np.ndarray, R:
         a, b = (farthest_samples(c, cfg.ego_check_points) for c in (cloud1, cloud2.float()))
     plain = vote_hypotheses(a, b, rc.vote).t[0]  # the vote's refined translations
     far, _ = histogram_peaks(a, b, rc.vote, weights=a.norm(dim=-1))  # the far scene's, range-weighted
-    starts = torch.cat([torch.from_numpy(t)[None], plain.double(), far[0].double()])
+    starts = torch.cat([torch.from_numpy(T_a[:3, 3])[None], plain.double(), far[0].double()])
     H = len(starts)
     rot = torch.eye(3, dtype=torch.float64).repeat(H, 1, 1)
-    rot[0] = torch.from_numpy(R)
+    rot[0] = torch.from_numpy(T_a[:3, :3])
     a64, b64 = a.double().expand(H, -1, -1), cloud2.expand(H, -1, -1)
     Rs, ts, _ = trimmed_rounds(a64, b64, rot, starts, rc)
-    Rs, ts = Rs.numpy(), ts.numpy()
-    share = [_explained_share(p1, tree2, Rs[k], ts[k], cfg.static_scale_min) for k in range(H)]
+    fitted = np.tile(np.eye(4), (H, 1, 1))
+    fitted[:, :3, :3], fitted[:, :3, 3] = Rs.numpy(), ts.numpy()
+    share = [_explained_share(p1, ranges, tree2, T, cfg.static_scale_min) for T in fitted]
     best = int(np.argmax(share))
     if share[best] <= (1 + cfg.ego_check_margin) * share[0]:
-        best = 0
-    won = np.eye(4)
-    won[:3, :3], won[:3, 3] = Rs[best], ts[best]
-    if best == 0:
-        return f, R, t, (won, share[0])
-    Rb, tb = Rs[best], ts[best]
-    return f + (p1 @ Rb.T + tb) - (p1 @ R.T + t), Rb, tb, (won, share[best])
+        return f, T_a, (fitted[0], share[0])
+    T_b = fitted[best]
+    return f + apply_transform(T_b, p1) - apply_transform(T_a, p1), T_b, (T_b, share[best])
 
 
 def _explained(p1: np.ndarray, p2: np.ndarray, T: np.ndarray, static: np.ndarray,

@@ -106,13 +106,13 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     B, M = q.shape[:2]
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)
-    workers = KDTREE_WORKERS if M * k >= PARALLEL_MIN_NEIGHBOURS else 1
     if shared:  # one tree serves every batch element
-        many = KDTREE_WORKERS if B * M * k >= PARALLEL_MIN_NEIGHBOURS else 1
-        d, i = cKDTree(r[0]).query(q.reshape(B * M, -1), k=k, workers=many)
+        workers = KDTREE_WORKERS if B * M * k >= PARALLEL_MIN_NEIGHBOURS else 1
+        d, i = cKDTree(r[0]).query(q.reshape(B * M, -1), k=k, workers=workers)
         idx[:] = torch.from_numpy(i.reshape(B, M, k).astype("int64", copy=False))
         dist2[:] = torch.from_numpy(d.reshape(B, M, k)).square_()
         return dist2.to(query.device, query.dtype), idx.to(query.device)
+    workers = KDTREE_WORKERS if M * k >= PARALLEL_MIN_NEIGHBOURS else 1
     for b in range(B):
         d, i = cKDTree(r[b]).query(q[b], k=k, workers=workers)
         idx[b] = torch.from_numpy(i.reshape(M, k).astype("int64", copy=False))
