@@ -21,7 +21,7 @@ class FitResult:
     flow: (N, 3) flow at the lowest loss seen, metres (detached).
     loss: that lowest loss, m².
     iterations: Adam steps taken (≤ ``cfg.iterations``).
-    stopped_early: True when the patience ran out before the budget.
+    stopped_early: True when the patience or the time budget ran out before the iteration budget.
     seconds: wall time of the loop, s.
     history: loss of every step, m².
     """
@@ -41,7 +41,8 @@ def minimise(params: Iterable[Tensor] | Iterable[dict], step: Callable[[], tuple
 
     ``step()`` returns ``(loss, flow)`` for the current parameters (the loss a scalar tensor with grad).
     Early stopping: the loop ends once ``cfg.patience`` consecutive steps have not lowered the best loss
-    by more than ``cfg.min_delta`` (``patience = 0``: never). The flow returned is the one evaluated at the
+    by more than ``cfg.min_delta`` (``patience = 0``: never), or after the first step that ends more than
+    ``cfg.time_budget`` seconds after the loop began (0: no limit). The flow returned is the one evaluated at the
     lowest loss, so stopping late never makes the answer worse by the loss's own measure.
     """
     params = list(params)
@@ -62,6 +63,9 @@ def minimise(params: Iterable[Tensor] | Iterable[dict], step: Callable[[], tuple
                 best_loss, best_flow = value, flow.detach().clone()
             stale += 1
         if cfg.patience and stale >= cfg.patience:
+            stopped = it < cfg.iterations
+            break
+        if cfg.time_budget and time.perf_counter() - t0 > cfg.time_budget:
             stopped = it < cfg.iterations
             break
         loss.backward()

@@ -5,6 +5,7 @@ robust rigid fit ignores a moving object."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -110,6 +111,15 @@ def test_refined_method_is_its_own_row() -> None:
     assert make_baseline("nsfp").name == "nsfp"
 
 
+def test_nsfp_full_is_the_authors_settings() -> None:
+    full = make_baseline("nsfp-full")
+    cfg = full.config.validate()
+    assert full.name == "nsfp-full" and cfg.iterations == 5000 and cfg.patience == 70 and cfg.backward
+    assert cfg.cycle_weight == 0.0 and cfg.truncate == pytest.approx(2 ** 0.5) and cfg.lr == 8e-3
+    assert NSFPConfig.published(iterations=7).iterations == 7  # overrides win
+    assert NSFPConfig().iterations == 60 and not NSFPConfig().backward  # the demo's budget unchanged
+
+
 def test_early_stopping_stops_and_budget_holds() -> None:
     x = torch.zeros(3, requires_grad=True)
 
@@ -129,6 +139,20 @@ def test_early_stopping_stops_and_budget_holds() -> None:
     res = minimise([y], bowl, LoopConfig(iterations=2000, lr=0.05, patience=10, min_delta=1e-6))
     assert res.stopped_early and res.iterations < 2000 and res.loss < 1e-3
     assert res.loss == min(res.history)
+
+
+def test_time_budget_stops_the_loop() -> None:
+    y = torch.tensor([2.0], requires_grad=True)
+
+    def slow_bowl():  # each step takes at least 5 ms: 20 ms of budget end the loop by step 5
+        time.sleep(0.005)
+        return (y ** 2).sum(), y.expand(1, 3)
+
+    res = minimise([y], slow_bowl, LoopConfig(iterations=10_000, lr=0.05, patience=0, time_budget=0.02))
+    assert res.stopped_early and 1 <= res.iterations <= 5 and res.seconds > 0.02  # 5 steps take >= 25 ms
+    assert len(res.history) == res.iterations and res.loss == min(res.history)
+    res = minimise([y], slow_bowl, LoopConfig(iterations=3, patience=0, time_budget=60.0))
+    assert not res.stopped_early and res.iterations == 3  # a budget not reached changes nothing
 
 
 def test_robust_rigid_fit_ignores_the_mover() -> None:
@@ -156,6 +180,8 @@ def test_bad_settings_are_config_errors() -> None:
         NSFPConfig(truncate=0).validate()
     with pytest.raises(ConfigError, match="plane"):
         RefineConfig(plane=1.5).validate()
+    with pytest.raises(ConfigError, match="time_budget"):
+        NSFPConfig(time_budget=-1.0).validate()
 
 
 def test_refinement_along_the_normals_keeps_a_flow_that_lies_on_frame_two_surfaces() -> None:
