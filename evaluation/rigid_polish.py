@@ -13,19 +13,24 @@ usable around any method, combines the two:
    (:mod:`training.model.rigid_vote`): the vote's translation hypotheses, the fullest maxima of the same
    histogram with each frame-1 point's pairs weighted by its range, and ``T₀`` itself, each refined by the
    vote's trimmed rigid rounds on farthest-point samples against the whole pc2. Each is scored by the share
-   of frame-1 points, weighted by range, that land within ``static_scale_min`` of a pc2 point. When another
+   of frame 1 that lands within ``static_scale_min`` of a pc2 point, each occupied cube of edge
+   ``ego_check_voxel`` counting once (its points share its weight), so that how densely a part of the scene
+   is sampled — a near mover densely, the far scene sparsely — does not decide. When another
    motion's share beats the refined ``T₀``'s by more than ``ego_check_margin``, it becomes ``T₀`` and the
    method's flow is re-based onto it (``f + T_b p − T_a p``: what the method added to its own ego-motion
    stays). In dense traffic the method's camera motion can be a near mover's (the net's pre-alignment
    follows the vote, whose histogram the near, densely sampled movers can outvote): there the far static
-   scene, which such a motion leaves unexplained, decides (docs/learned-flow.md, twenty-fifth round);
+   scene, which such a motion leaves unexplained, decides (docs/learned-flow.md, twenty-fifth round). Each
+   point weighted by its range instead (``ego_check_voxel`` 0, the twenty-fifth round's weights) still let a
+   third of the points on cars driving along with the camera outweigh a static street that a wrong motion
+   leaves mostly explained (twenty-sixth round);
 2. keeps the frame-1 points whose flow agrees with ``T₀`` (residual below
    ``max(static_scale_min, mad_factor · 1.4826 · median residual)``): the method's own guess of what is
    static;
 3. registers them onto pc2 by point-to-plane ICP with Cauchy weights, started at ``T₀``
    (:func:`evaluation.baselines.icp.icp`, ``kernel="cauchy"``, ``max_distance`` as the pair limit);
 3b. (``ego_check``) keeps step 1b's motion instead when the registered one explains less of the scene — its
-   range-weighted share below ``(1 − ego_check_margin)`` times step 1b's: on a street whose walls run along
+   share (as in step 1b) below ``(1 − ego_check_margin)`` times step 1b's: on a street whose walls run along
    the camera's path, the point-to-plane pairs hardly hold the motion along it, and a registration can slide
    with the traffic ahead (docs/learned-flow.md, twenty-fifth round);
 4. a frame-1 point takes the rigid flow ``T p − p`` when both say it moves with the camera: the method
@@ -108,9 +113,12 @@ class RigidPolishConfig:
         rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
         than the motion so chosen (steps 1b and 3b of the module docstring); false = the method's motion and
         its registration as they come.
-    ego_check_margin: another motion replaces the method's when its range-weighted share of explained
-        frame-1 points is more than (1 + this) times the method's; the registration is refused when its share
-        is below (1 − this) times that motion's.
+    ego_check_margin: another motion replaces the method's when its share of explained frame 1 is more than
+        (1 + this) times the method's; the registration is refused when its share is below (1 − this) times
+        that motion's.
+    ego_check_voxel: metres; the edge of the cubes by which that share weighs frame 1: each occupied cube
+        counts once, its points sharing its weight. 0 = each point weighted by its range from camera 1 (the
+        twenty-fifth round's weights).
     ego_check_points: the vote and the trimmed rounds run on this many farthest-point samples of each cloud
         (0 = every point)."""
 
@@ -134,14 +142,15 @@ class RigidPolishConfig:
     ego_check: bool = True
     ego_check_margin: float = 0.05
     ego_check_points: int = 512
+    ego_check_voxel: float = 1.0
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
             raise ValueError("iterations, fit_iterations and cluster_iterations must be >= 1, min_points >= 6")
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
-        if self.ego_check_margin < 0 or self.ego_check_points < 0:
-            raise ValueError("need ego_check_margin >= 0 and ego_check_points >= 0")
+        if self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0:
+            raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0 and ego_check_voxel >= 0")
         if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
             raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
@@ -169,17 +178,17 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     init = np.eye(4)
     init[:3, :3], init[:3, 3] = R, t
     tree2 = cKDTree(p2) if len(p2) else None
-    ranges = np.linalg.norm(p1, axis=1)  # metres from camera 1: the weights of the explained share (1b, 3b)
     checked = None  # step 1b's refined motion (4, 4) and its explained share
     if cfg.ego_check and tree2 is not None and len(p1) >= cfg.min_points:
-        f, init, checked = _ego_check(p1, p2, tree2, ranges, f, init, cfg)
+        weights = _share_weights(p1, cfg.ego_check_voxel)  # each frame-1 point's part in the explained share
+        f, init, checked = _ego_check(p1, p2, tree2, weights, f, init, cfg)
     agree = _agreeing(np.linalg.norm(p1 + f - apply_transform(init, p1), axis=1), cfg)
     if agree.sum() < cfg.min_points or len(p2) < 6:
         return f.astype(np.float32), init, np.zeros(len(p1), bool)
     icp_cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=cfg.max_distance,
                         max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
-    if checked is not None and (_explained_share(p1, ranges, tree2, T, cfg.static_scale_min)
+    if checked is not None and (_explained_share(p1, weights, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):
         T = checked[0]  # step 3b: the registration slid away from what explains the scene
     target = apply_transform(T, p1)
@@ -196,20 +205,31 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     return out.astype(np.float32), T, static
 
 
-def _explained_share(p1: np.ndarray, ranges: np.ndarray, tree2: cKDTree, T: np.ndarray, radius: float) -> float:
-    """The share of frame-1 points ``p1`` (N, 3), each weighted by its range from camera 1 (``ranges`` (N,),
-    metres), whose position moved by ``T`` (4, 4) has a frame-2 point (``tree2``) within ``radius`` metres."""
+def _share_weights(p1: np.ndarray, voxel: float) -> np.ndarray:
+    """Each frame-1 point's weight (N,) in the explained share of steps 1b and 3b: one over the number of points
+    of ``p1`` (N, 3) in its cube of edge ``voxel`` metres (so every occupied cube weighs one), or, for
+    ``voxel`` 0, its range from camera 1 (metres)."""
+    if voxel == 0:
+        return np.linalg.norm(p1, axis=1)
+    _, cube, count = np.unique(np.floor(p1 / voxel).astype(np.int64), axis=0, return_inverse=True,
+                               return_counts=True)
+    return 1.0 / count[cube.ravel()]
+
+
+def _explained_share(p1: np.ndarray, weights: np.ndarray, tree2: cKDTree, T: np.ndarray, radius: float) -> float:
+    """The weighted share of frame-1 points ``p1`` (N, 3) (``weights`` (N,), :func:`_share_weights`) whose
+    position moved by ``T`` (4, 4) has a frame-2 point (``tree2``) within ``radius`` metres."""
     dist, _ = tree2.query(apply_transform(T, p1))
-    return float((ranges * (dist < radius)).sum() / max(ranges.sum(), 1e-12))
+    return float((weights * (dist < radius)).sum() / max(weights.sum(), 1e-12))
 
 
-def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, ranges: np.ndarray, f: np.ndarray,
+def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, weights: np.ndarray, f: np.ndarray,
                T_a: np.ndarray, cfg: RigidPolishConfig) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, float]]:
     """Step 1b of the module docstring: ``(flow, T₀, (T_chosen, share))``, either the method's ``f`` (N, 3)
     and its fitted motion ``T_a`` (4, 4) unchanged, or — when one of the rigid vote's motions explains clearly
     more of the scene — that motion and ``f`` re-based onto it (``f + T_b p − T_a p``: what the method put on
-    top of its own ego-motion stays); and the refined motion that won (4, 4) with its range-weighted explained
-    share, for step 3b. Metres, camera frames."""
+    top of its own ego-motion stays); and the refined motion that won (4, 4) with its explained share
+    (``weights`` (N,), :func:`_share_weights`), for step 3b. Metres, camera frames."""
     import torch
 
     from training.model.rigid_vote import RigidVoteConfig, trimmed_rounds
@@ -232,7 +252,7 @@ def _ego_check(p1: np.ndarray, p2: np.ndarray, tree2: cKDTree, ranges: np.ndarra
     Rs, ts, _ = trimmed_rounds(a64, b64, rot, starts, rc)
     fitted = np.tile(np.eye(4), (H, 1, 1))
     fitted[:, :3, :3], fitted[:, :3, 3] = Rs.numpy(), ts.numpy()
-    share = [_explained_share(p1, ranges, tree2, T, cfg.static_scale_min) for T in fitted]
+    share = [_explained_share(p1, weights, tree2, T, cfg.static_scale_min) for T in fitted]
     best = int(np.argmax(share))
     if share[best] <= (1 + cfg.ego_check_margin) * share[0]:
         return f, T_a, (fitted[0], share[0])

@@ -130,8 +130,8 @@ def _truck_scene(seed: int):
 
 @pytest.mark.parametrize("seed, drop", [(0, 0), (1, 0), (2, 0), (0, 300)])
 def test_ego_check_replaces_a_camera_motion_locked_onto_a_near_truck(seed, drop):
-    """Step 1b: the range-weighted share of the scene that the truck's motion explains is far below the
-    camera's (the truck is near, the street far), so the rigid vote's motion replaces the method's and the
+    """Step 1b: the share of the scene that the truck's motion explains is far below the camera's (the truck
+    fills few cubes of the scene however densely it is sampled), so the rigid vote's motion replaces the method's and the
     static scene is right again; without the check the polish refines the truck's motion. ``drop``: frame 2
     has fewer points than frame 1 (each cloud then sampled on its own)."""
     pc1, pc2, truth, is_truck, locked = _truck_scene(seed)
@@ -142,6 +142,55 @@ def test_ego_check_replaces_a_camera_motion_locked_onto_a_near_truck(seed, drop)
     assert err_off > 0.5 and err_on < 0.05, (err_off, err_on)
     rot_err, t_err = transform_error(T, EGO)
     assert rot_err < 0.1 and t_err < 0.02, (rot_err, t_err)
+
+
+def _street_with_traffic(seed: int):
+    """A street (walls along the camera's path, parked cars along them; 6000 points) whose camera moved by EGO,
+    and three cars right ahead, seen from behind (3000 points), that drive 0.9 m forward on their own — a third
+    of the points on traffic moving along with the camera. Returns pc1, pc2, the true flow and the car mask."""
+    rng = np.random.default_rng(seed)
+    own = EGO.copy()
+    own[:3, 3] += (0.0, 0.0, 0.9)
+
+    def street():
+        k = 1800
+        walls = [np.stack([np.full(k, x), rng.uniform(-3, 1.5, k), rng.uniform(4, 45, k)], 1) for x in (-7.0, 8.0)]
+        spots = [(-4.5, z) for z in (8, 16, 24, 32, 40)] + [(5.5, z) for z in (12, 20, 28, 36, 44)]
+        return np.concatenate(walls + [box_surface(rng, (x, 0.85, z), (1.8, 1.5, 4.5), 240) for x, z in spots])
+
+    def cars():
+        backs = [(-1.5, 0.5, 9.0), (1.8, 0.5, 11.0), (-1.5, 0.5, 15.0)]
+        return np.concatenate([box_surface(rng, c, (1.8, 1.5, 0.4), 1000) for c in backs])
+
+    s1, s2, c1, c2 = street(), street(), cars(), cars()
+    pc1, pc2 = np.concatenate([s1, c1]), np.concatenate([apply_transform(EGO, s2), apply_transform(own, c2)])
+    truth = apply_transform(EGO, pc1) - pc1
+    is_car = np.arange(len(pc1)) >= len(s1)
+    truth[is_car] = apply_transform(own, c1) - c1
+    return pc1, pc2, truth, is_car
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_ego_check_counts_occupied_space_not_points(seed):
+    """Steps 1b and 3b weigh frame 1 by occupied 1 m cubes: a method with the right camera motion that missed
+    the cars driving along with it keeps that motion. Weighted by range instead (``ego_check_voxel`` 0, the
+    twenty-fifth round's weights), the cars' motion explains more — the cars wholly, the walls still, as they
+    run along the slide — and the polish takes the cars' motion for the camera's."""
+    pc1, pc2, truth, is_car = _street_with_traffic(seed)
+    method = apply_transform(EGO, pc1) - pc1 + np.random.default_rng(9).normal(0, 0.05, pc1.shape)
+    by_range, _, _ = polish_rigid(pc1, pc2, method, RigidPolishConfig(ego_check_voxel=0.0))
+    by_cube, T, _ = polish_rigid(pc1, pc2, method)
+    err_range, err_cube = (np.linalg.norm(f - truth, axis=1)[~is_car].mean() for f in (by_range, by_cube))
+    assert err_range > 0.4 and err_cube < 0.1, (err_range, err_cube)
+
+
+def test_share_weights_give_every_occupied_cube_one_vote():
+    from evaluation.rigid_polish import _share_weights
+
+    pts = np.array([[0.1, 0.1, 5.1], [0.2, 0.3, 5.4], [0.9, 0.5, 5.9], [2.5, 0.0, 10.0], [-0.5, 0.2, 5.5]])
+    w = _share_weights(pts, 1.0)
+    np.testing.assert_allclose(w, [1 / 3, 1 / 3, 1 / 3, 1.0, 1.0])  # cubes (0,0,5) ×3, (2,0,10), (-1,0,5)
+    np.testing.assert_allclose(_share_weights(pts, 0.0), np.linalg.norm(pts, axis=1))
 
 
 def test_ego_check_keeps_a_right_camera_motion():
@@ -199,7 +248,8 @@ def test_wrapper_names_its_row_and_delegates():
                                           ("min_points", 3), ("mad_factor", -1.0), ("cluster_radius", 0.0),
                                           ("cluster_min_fitness", 1.0), ("cluster_iterations", 0),
                                           ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0),
-                                          ("ego_check_margin", -0.1), ("ego_check_points", -1)])
+                                          ("ego_check_margin", -0.1), ("ego_check_points", -1),
+                                          ("ego_check_voxel", -1.0)])
 def test_config_refuses_impossible_settings(field, value):
     with pytest.raises(ValueError):
         RigidPolishConfig(**{field: value})
