@@ -198,7 +198,7 @@ def test_a_registered_method_is_a_baseline(world: Path, tmp_path: Path, monkeypa
     rows = json.loads((tmp_path / "eval" / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["zero", "constant"] and rows[0]["EPE3D"] != rows[1]["EPE3D"]
     assert evaluate(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--baselines", "refine"]) == 2
-    assert "unknown baseline 'refine' (choose from zero, static, icp-p2p, icp-p2l, fgr, tvote, rvote, nsfp, constant)" in \
+    assert "unknown baseline 'refine' (choose from zero, static, icp-p2p, icp-p2l, fgr, tvote, rvote, nsfp, nsfp-full, constant)" in \
         capsys.readouterr().err
     with pytest.raises(ConfigError, match="unknown wrapper 'zero'"):
         methods.make_method("zero", _Constant())
