@@ -75,9 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ego-check", default="on", choices=("on", "off"),
                    help="the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
                         "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
-                        "the scene refused, both by the share of frame 1 explained (each occupied 1 m cube counting once); off = the "
-                        "net's motion and its registration as they come, the row named '<net> + rigid polish (no ego "
-                        "check)'")
+                        "the scene refused, both by the share of frame 1 explained (each occupied 1 m cube counting "
+                        "once); off = the net's motion and its registration as they come, the row named '<net> + "
+                        "rigid polish (no ego check)'")
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
