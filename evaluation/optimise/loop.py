@@ -62,10 +62,7 @@ def minimise(params: Iterable[Tensor] | Iterable[dict], step: Callable[[], tuple
             if value < best_loss:  # better, but by less than min_delta: keep the flow, still count as stale
                 best_loss, best_flow = value, flow.detach().clone()
             stale += 1
-        if cfg.patience and stale >= cfg.patience:
-            stopped = it < cfg.iterations
-            break
-        if cfg.time_budget and time.perf_counter() - t0 > cfg.time_budget:
+        if (cfg.patience and stale >= cfg.patience) or (cfg.time_budget and time.perf_counter() - t0 > cfg.time_budget):
             stopped = it < cfg.iterations
             break
         loss.backward()
