@@ -46,11 +46,13 @@ usable around any method, combines the two:
    ``cluster_min_fitness`` of its points then land within ``static_scale_min`` of those pc2 points; else
    it keeps the method's flow. Cars, cyclists and pedestrians move rigidly from one frame to the next.
 6. (``rigid_objects``) every object-sized cluster of frame 1 (:func:`core.clusters.object_clusters`: a
-   single-linkage component no longer than ``object_max_extent`` on any axis, of at most
-   ``object_max_share`` of the cloud — things, not walls) moves rigidly: it takes the ego-motion's rotation
-   and the median translation of the flow so far (one point that snapped onto a wrong surface, or a part
-   of a mover that step 4 took for static, follows the rest of its object). Then a two-way point-to-point
-   ICP (:class:`evaluation.baselines.icp.ICPConfig` ``two_way``) registers the cluster onto the pc2 points
+   single-linkage component no longer than ``object_max_extent`` on any axis — things, not walls —
+   however many of the cloud's points it holds: a car right ahead can hold a third of them, and counted
+   out by a share of 0.1 it kept the method's flow; docs/learned-flow.md, twenty-seventh round) moves
+   rigidly: it takes the ego-motion's rotation and the median translation of the flow so far (one point
+   that snapped onto a wrong surface, or a part of a mover that step 4 took for static, follows the rest of
+   its object). Then a two-way point-to-point ICP (:class:`evaluation.baselines.icp.ICPConfig` ``two_way``)
+   registers the cluster onto the pc2 points
    that the rest of the static scene does not explain, started at that motion; the fit replaces it when
    its score — the mean distance (truncated at ``static_scale_min``) from the moved cluster to those points
    plus the mean from those of them within ``max_distance`` back to the moved cluster — is below
@@ -106,7 +108,8 @@ class RigidPolishConfig:
     rigid_objects: make every object-sized cluster of frame 1 move rigidly and try a two-way fit for it
         (step 6 of the module docstring); false = steps 1–5 only (the fifth round's polish).
     object_max_extent: metres; a cluster longer than this along any axis is a wall or a row of things.
-    object_max_share: a cluster holding more than this share of the cloud is not an object.
+    object_max_share: a cluster holding more than this share of the cloud is not an object (1 = the extent alone
+        decides: a near car can hold a large share; 0.1 before the twenty-seventh round).
     object_margin: the two-way fit replaces the cluster's median motion when its score is below
         (1 − object_margin) times that motion's score (0 = whenever lower).
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
@@ -137,7 +140,7 @@ class RigidPolishConfig:
     cluster_min_fitness: float = 0.5
     rigid_objects: bool = True
     object_max_extent: float = 6.0
-    object_max_share: float = 0.1
+    object_max_share: float = 1.0
     object_margin: float = 0.4
     ego_check: bool = True
     ego_check_margin: float = 0.05
