@@ -72,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the rigid polish's step 6 (RigidPolishConfig.rigid_objects): every object-sized cluster "
                         "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
                         "its row named '<net> + rigid polish (no object step)'")
+    r.add_argument("--object-search", default="on", choices=("on", "off"),
+                   help="the rigid polish's step 6b (RigidPolishConfig.object_search): an object that the camera's "
+                        "motion leaves off frame 2 is also fitted from the translation that a histogram of offsets to "
+                        "the frame-2 points around it favours (within 2.5 m, along the ground); off = from its median "
+                        "motion alone, the row named '<net> + rigid polish (no object search)'")
     r.add_argument("--ego-check", default="on", choices=("on", "off"),
                    help="the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
                         "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
@@ -120,7 +125,7 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-POLISH_OFF = {"rigid_objects": "no object step", "ego_check": "no ego check"}
+POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search", "ego_check": "no ego check"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 
@@ -135,7 +140,7 @@ def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = ()) -> list
     for w in wrappers:
         row = make_method(w, rows[-1])
         if w == "rigid-polish" and polish_off:
-            row.config = dataclasses.replace(row.config, **{k: False for k in polish_off})
+            row.config = dataclasses.replace(row.config, **{k: type(getattr(row.config, k))() for k in polish_off})
             row.name += f" ({', '.join(POLISH_OFF[k] for k in polish_off)})"
         rows.append(row)
     return rows
@@ -220,8 +225,8 @@ def _run(args) -> int:
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
-        off = tuple(k for k, flag in (("rigid_objects", args.rigid_objects), ("ego_check", args.ego_check))
-                    if flag == "off")
+        off = tuple(k for k, flag in (("rigid_objects", args.rigid_objects), ("object_search", args.object_search),
+                                      ("ego_check", args.ego_check)) if flag == "off")
         methods = [x for m in methods
                    for x in (_stacked(m, wrappers, off) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too

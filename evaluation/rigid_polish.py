@@ -57,10 +57,22 @@ usable around any method, combines the two:
    its score — the mean distance (truncated at ``static_scale_min``) from the moved cluster to those points
    plus the mean from those of them within ``max_distance`` back to the moved cluster — is below
    ``(1 − object_margin)`` times the median motion's score. The reverse half brings in the pc2 points near
-   the cluster that nothing explains, such as a car's new front end; a car that the method missed wholly
-   and that slid along itself is still not found (under the Cauchy weights the few pairs at its ends weigh
-   little, and the score cannot tell that motion from the camera's at this sampling density;
+   the cluster that nothing explains, such as a car's new front end; a cluster that no pc2 point lies near
+   explains nothing and scores as if every pair were ``static_scale_min`` off. A car that the method missed
+   wholly and that slid along itself is still not found (under the Cauchy weights the few pairs at its ends
+   weigh little, and the score cannot tell that motion from the camera's at this sampling density;
    docs/learned-flow.md, twenty-fourth round).
+6b. (``object_search``) a fit started at the median motion cannot reach a car more than ``max_distance``
+   from it (the ICP pairs end there): an oncoming or overtaking car that the method left with the camera's
+   motion. When the camera's motion leaves the cluster off pc2 (fewer than ``cluster_min_fitness`` of its
+   points within ``static_scale_min`` of a pc2 point), the cluster is fitted a second time, started at the
+   median motion shifted by the best-scoring (two-way score) of the ``object_search_peaks`` fullest maxima of
+   the histogram of offsets from the moved cluster to the pc2 points around it, within ``object_search``
+   metres (:func:`training.model.translation_vote.histogram_peaks`, the vote's histogram per object), of
+   those rising or falling no more than ``object_search_rise`` (things on the ground move along it). That fit
+   replaces the first when it scores lower, lies in another basin (its points on average more than
+   ``static_scale_min`` from the first fit's) and rises no more than ``object_search_rise``; the margin
+   against the median motion is unchanged (docs/learned-flow.md, twenty-seventh round).
 
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
@@ -112,6 +124,11 @@ class RigidPolishConfig:
         decides: a near car can hold a large share; 0.1 before the twenty-seventh round).
     object_margin: the two-way fit replaces the cluster's median motion when its score is below
         (1 − object_margin) times that motion's score (0 = whenever lower).
+    object_search: metres; the half-side of the translation search of step 6b around the median motion
+        (0 = step 6 from the median motion alone, the twenty-sixth round's polish).
+    object_search_peaks: how many of the search histogram's fullest maxima are considered.
+    object_search_rise: metres; the largest vertical part (camera y) of a searched object's motion beyond its
+        median motion.
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
         rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
         than the motion so chosen (steps 1b and 3b of the module docstring); false = the method's motion and
@@ -142,6 +159,9 @@ class RigidPolishConfig:
     object_max_extent: float = 6.0
     object_max_share: float = 1.0
     object_margin: float = 0.4
+    object_search: float = 2.5
+    object_search_peaks: int = 8
+    object_search_rise: float = 0.3
     ego_check: bool = True
     ego_check_margin: float = 0.05
     ego_check_points: int = 512
@@ -154,6 +174,8 @@ class RigidPolishConfig:
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
         if self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0:
             raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0 and ego_check_voxel >= 0")
+        if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0):
+            raise ValueError("need object_search >= 0, object_search_peaks >= 1 and object_search_rise >= 0")
         if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
             raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
@@ -318,26 +340,28 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
 def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig) -> float:
     """How well ``moved`` (k, 3) lands on ``target`` (m, 3): mean distance from each moved point to the targets
     plus the mean from the targets within ``max_distance`` of it back to it, both truncated at
-    ``static_scale_min`` (metres)."""
+    ``static_scale_min`` (metres); with no target that near, the second mean counts as ``static_scale_min``."""
     if len(target) == 0:
         return 0.0
     ahead = np.minimum(cKDTree(target).query(moved)[0], cfg.static_scale_min).mean()
     back, _ = cKDTree(moved).query(target, distance_upper_bound=cfg.max_distance)
     near = back[np.isfinite(back)]
-    return float(ahead + (np.minimum(near, cfg.static_scale_min).mean() if len(near) else 0.0))
+    return float(ahead + (np.minimum(near, cfg.static_scale_min).mean() if len(near) else cfg.static_scale_min))
 
 
 def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, owner: np.ndarray,
                    cfg: RigidPolishConfig) -> None:
-    """Step 6 of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1`` moves
-    rigidly, by the median motion or by its two-way fit onto the pc2 points the rest of the static scene does
-    not explain (``owner`` (M,): each pc2 point's explaining static row of ``p1``, or −1; :func:`_explained`)."""
+    """Steps 6 and 6b of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1``
+    moves rigidly, by the median motion or by a two-way fit onto the pc2 points the rest of the static scene
+    does not explain (``owner`` (M,): each pc2 point's explaining static row of ``p1``, or −1;
+    :func:`_explained`). ``T`` (4, 4): the polished camera motion."""
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
                               cfg.object_max_share)
     if not objects:
         return
     icp_cfg = _cluster_icp(cfg, two_way=True)
     member = np.zeros(len(p1), bool)
+    landed = cKDTree(p2).query(apply_transform(T, p1))[0] < cfg.static_scale_min  # on pc2 under the camera's motion
     for idx in objects:
         member[:] = False
         member[idx] = True
@@ -347,10 +371,48 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
         median = _median_start(T, pts, flow[idx])
         moved = apply_transform(median, pts)
         if len(target) >= cfg.cluster_min_points:
-            fitted = apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)
-            if _two_way_score(fitted, target, cfg) < (1 - cfg.object_margin) * _two_way_score(moved, target, cfg):
-                moved = fitted
+            best = apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)
+            best_score = _two_way_score(best, target, cfg)
+            if landed[idx].mean() < cfg.cluster_min_fitness:  # step 6b: the camera's motion leaves it off pc2
+                for start in _searched_start(pts, moved, target, median, cfg):
+                    fitted = apply_transform(icp(pts, target, icp_cfg, init=start).transform, pts)
+                    score = _two_way_score(fitted, target, cfg)
+                    rise = abs(float(np.mean(fitted[:, 1] - moved[:, 1])))
+                    if (score < best_score and rise <= cfg.object_search_rise
+                            and np.linalg.norm(fitted - best, axis=1).mean() > cfg.static_scale_min):
+                        best, best_score = fitted, score
+            if best_score < (1 - cfg.object_margin) * _two_way_score(moved, target, cfg):
+                moved = best
         flow[idx] = moved - pts
+
+
+def _searched_start(pts: np.ndarray, moved: np.ndarray, target: np.ndarray, median: np.ndarray,
+                    cfg: RigidPolishConfig) -> list[np.ndarray]:
+    """Step 6b's start for the cluster ``pts`` (k, 3), ``moved`` (k, 3) by its median motion ``median`` (4×4):
+    ``median`` shifted by the translation within ``object_search`` metres that the histogram of offsets from
+    ``moved`` to the ``target`` points (m, 3) around it favours (:func:`training.model.translation_vote.
+    histogram_peaks`; of its ``object_search_peaks`` fullest maxima rising no more than ``object_search_rise``,
+    the one with the lowest two-way score). Empty when the search is off or finds nothing. Metres, camera
+    frames."""
+    if cfg.object_search == 0:
+        return []
+    import torch
+
+    from training.model.translation_vote import VoteConfig, histogram_peaks
+
+    reach = cfg.object_search + cfg.max_distance
+    near = target[((target > moved.min(0) - reach) & (target < moved.max(0) + reach)).all(axis=1)]
+    if len(near) < cfg.cluster_min_points:
+        return []
+    vote = VoteConfig(max_translation_m=cfg.object_search, candidates=cfg.object_search_peaks)
+    peaks, found = histogram_peaks(torch.from_numpy(moved)[None].float(), torch.from_numpy(near)[None].float(), vote)
+    shifts = peaks[0].double().numpy()
+    shifts = shifts[np.abs(shifts[:, 1]) <= cfg.object_search_rise]  # things on the ground move along it
+    if not bool(found[0]) or not len(shifts):
+        return []
+    start = median.copy()
+    start[:3, 3] += min(shifts, key=lambda d: _two_way_score(moved + d, target, cfg))
+    return [start]
 
 
 class RigidPolished(MethodWrapper):

@@ -344,3 +344,7 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     both = _stacked(net, ["rigid-polish"], ("rigid_objects", "ego_check"))[1]
     assert not both.config.ego_check and not both.config.rigid_objects
     assert both.name == "zero + rigid polish (no object step, no ego check)"
+    # --object-search off: step 6 from the median motion alone (object_search 0 m), named so
+    flat = _stacked(net, ["rigid-polish"], ("object_search",))[1]
+    assert flat.config.object_search == 0.0 and rows[2].config.object_search > 0 and flat.config.rigid_objects
+    assert flat.name == "zero + rigid polish (no object search)"

@@ -129,6 +129,21 @@ def test_rigid_objects_step_moves_a_near_car_that_fills_much_of_the_view(seed):
     assert err_new[~is_car].mean() < 0.03 and err_new[~is_car].mean() <= err_capped[~is_car].mean() + 0.002
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_object_search_finds_a_car_beyond_the_fits_reach(seed):
+    """Step 6b: the method missed a car wholly (the camera's motion on it), and the car drove 1.2 m on and 0.8 m
+    aside: 1.4 m from where the method put it, beyond the reach of the ICP pairs (``max_distance`` 1 m) from
+    that start. The histogram of offsets to the pc2 points around it gives a second start in the right basin."""
+    pc1, pc2, truth, is_car = _street_with_car(seed, np.array([0.8, 0.0, 1.2]), car_points=400, car_z=10.0)
+    flow = apply_transform(SMALL, pc1) - pc1 + np.random.default_rng(seed + 10).normal(0, 0.03, pc1.shape)
+    local, _, _ = polish_rigid(pc1, pc2, flow, RigidPolishConfig(object_search=0.0))
+    searched, _, _ = polish_rigid(pc1, pc2, flow)
+    err_local, err_searched = (np.linalg.norm(f - truth, axis=1) for f in (local, searched))
+    assert err_local[is_car].mean() > 1.0 and err_searched[is_car].mean() < 0.1, (err_local[is_car].mean(),
+                                                                                  err_searched[is_car].mean())
+    assert err_searched[~is_car].mean() <= err_local[~is_car].mean() + 0.002
+
+
 EGO = motion(1.0, (0.0, 1.0, 0.0), (0.05, 0.0, -1.3))  # the camera drives 1.3 m forward and turns 1°
 
 
@@ -270,6 +285,7 @@ def test_wrapper_names_its_row_and_delegates():
                                           ("min_points", 3), ("mad_factor", -1.0), ("cluster_radius", 0.0),
                                           ("cluster_min_fitness", 1.0), ("cluster_iterations", 0),
                                           ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0),
+                                          ("object_search", -1.0), ("object_search_peaks", 0), ("object_search_rise", -0.1),
                                           ("ego_check_margin", -0.1), ("ego_check_points", -1),
                                           ("ego_check_voxel", -1.0)])
 def test_config_refuses_impossible_settings(field, value):
