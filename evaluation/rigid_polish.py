@@ -226,7 +226,7 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         if cfg.objects:
             _polish_clusters(p1, p2, out, T, static, gap, cfg)
         if cfg.rigid_objects:
-            _rigid_objects(p1, p2, out, T, owner, cfg)
+            _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, cfg)
     return out.astype(np.float32), T, static
 
 
@@ -350,18 +350,18 @@ def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig
 
 
 def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, owner: np.ndarray,
-                   cfg: RigidPolishConfig) -> None:
+                   landed: np.ndarray, cfg: RigidPolishConfig) -> None:
     """Steps 6 and 6b of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1``
     moves rigidly, by the median motion or by a two-way fit onto the pc2 points the rest of the static scene
     does not explain (``owner`` (M,): each pc2 point's explaining static row of ``p1``, or −1;
-    :func:`_explained`). ``T`` (4, 4): the polished camera motion."""
+    :func:`_explained`). ``T`` (4, 4): the polished camera motion; ``landed`` (N,): whether each point moved by
+    ``T`` lies within ``static_scale_min`` of a pc2 point (step 4's test, reused by step 6b)."""
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
                               cfg.object_max_share)
     if not objects:
         return
     icp_cfg = _cluster_icp(cfg, two_way=True)
     member = np.zeros(len(p1), bool)
-    landed = cKDTree(p2).query(apply_transform(T, p1))[0] < cfg.static_scale_min  # on pc2 under the camera's motion
     for idx in objects:
         member[:] = False
         member[idx] = True
