@@ -74,9 +74,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "its row named '<net> + rigid polish (no object step)'")
     r.add_argument("--object-search", default="on", choices=("on", "off"),
                    help="the rigid polish's step 6b (RigidPolishConfig.object_search): an object that the camera's "
-                        "motion leaves off frame 2 is also fitted from the translation that a histogram of offsets to "
+                        "motion leaves off frame 2, or of at least 32 points, is also fitted from the translation that "
+                        "a histogram of offsets to "
                         "the frame-2 points around it favours (within 2.5 m, along the ground); off = from its median "
                         "motion alone, the row named '<net> + rigid polish (no object search)'")
+    r.add_argument("--score-in-view", default="on", choices=("on", "off"),
+                   help="the rigid polish's object score (RigidPolishConfig.score_in_view) counts only the points that "
+                        "every motion compared keeps inside frame 2's own field of view; off = every point, the row "
+                        "named '<net> + rigid polish (all points scored)'")
     r.add_argument("--ego-check", default="on", choices=("on", "off"),
                    help="the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
                         "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
@@ -125,7 +130,8 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search", "ego_check": "no ego check"}
+POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
+              "score_in_view": "all points scored", "ego_check": "no ego check"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 
@@ -226,7 +232,8 @@ def _run(args) -> int:
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k, flag in (("rigid_objects", args.rigid_objects), ("object_search", args.object_search),
-                                      ("ego_check", args.ego_check)) if flag == "off")
+                                      ("score_in_view", args.score_in_view), ("ego_check", args.ego_check))
+                    if flag == "off")
         methods = [x for m in methods
                    for x in (_stacked(m, wrappers, off) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too

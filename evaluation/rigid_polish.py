@@ -91,9 +91,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.clusters import object_clusters, radius_components
-from evaluation.baselines.base import apply_transform
+from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
-from evaluation.view_prune import rigid_fit
+from evaluation.view_prune import ViewExtent, ViewPruneConfig, rigid_fit
 from evaluation.wrapping import MethodWrapper
 
 
@@ -129,6 +129,12 @@ class RigidPolishConfig:
     object_search_peaks: how many of the search histogram's fullest maxima are considered.
     object_search_rise: metres; the largest vertical part (camera y) of a searched object's motion beyond its
         median motion.
+    object_search_min_points: step 6b also searches for every cluster of at least this many points, not only
+        for those the camera's motion leaves off pc2 (a near car coming closer lands on its own surface).
+        Above the cloud's size: only those (the twenty-seventh round's polish).
+    score_in_view: the two-way score's first mean counts only the moved points that land inside pc2's own
+        field of view (:class:`evaluation.view_prune.ViewExtent`, the view pruning's azimuth margin), when at
+        least ``cluster_min_points`` do (step 6 of the module docstring); false = every moved point counts.
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
         rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
         than the motion so chosen (steps 1b and 3b of the module docstring); false = the method's motion and
@@ -162,6 +168,8 @@ class RigidPolishConfig:
     object_search: float = 2.5
     object_search_peaks: int = 8
     object_search_rise: float = 0.3
+    object_search_min_points: int = 32
+    score_in_view: bool = True
     ego_check: bool = True
     ego_check_margin: float = 0.05
     ego_check_points: int = 512
@@ -174,8 +182,10 @@ class RigidPolishConfig:
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
         if self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0:
             raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0 and ego_check_voxel >= 0")
-        if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0):
-            raise ValueError("need object_search >= 0, object_search_peaks >= 1 and object_search_rise >= 0")
+        if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0
+                and self.object_search_min_points >= 0):
+            raise ValueError("need object_search >= 0, object_search_peaks >= 1, object_search_rise >= 0 and "
+                             "object_search_min_points >= 0")
         if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
             raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
@@ -226,7 +236,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         if cfg.objects:
             _polish_clusters(p1, p2, out, T, static, gap, cfg)
         if cfg.rigid_objects:
-            _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, cfg)
+            view = ViewExtent.of(p2, ViewPruneConfig.margin_deg) if cfg.score_in_view else None
+            _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
     return out.astype(np.float32), T, static
 
 
@@ -337,25 +348,50 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
             flow[rows] = moved - pts
 
 
-def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig) -> float:
+def _two_way_score(moved: np.ndarray, target: np.ndarray, cfg: RigidPolishConfig,
+                   counted: np.ndarray | None = None) -> float:
     """How well ``moved`` (k, 3) lands on ``target`` (m, 3): mean distance from each moved point to the targets
     plus the mean from the targets within ``max_distance`` of it back to it, both truncated at
-    ``static_scale_min`` (metres); with no target that near, the second mean counts as ``static_scale_min``."""
+    ``static_scale_min`` (metres); with no target that near, the second mean counts as ``static_scale_min``.
+    ``counted`` (k,) bool, optional: the moved points the first mean runs over (:func:`_in_view`)."""
     if len(target) == 0:
         return 0.0
-    ahead = np.minimum(cKDTree(target).query(moved)[0], cfg.static_scale_min).mean()
-    back, _ = cKDTree(moved).query(target, distance_upper_bound=cfg.max_distance)
+    scale = cfg.static_scale_min
+    ahead_of = moved if counted is None else moved[counted]
+    target = target[within_box(target, moved, max(scale, cfg.max_distance))]  # the others are beyond both bounds
+    ahead = np.full(len(ahead_of), scale)
+    back = np.empty(0)
+    if len(target):
+        ahead = np.minimum(cKDTree(target).query(ahead_of, distance_upper_bound=scale)[0], scale)
+        back, _ = cKDTree(moved).query(target, distance_upper_bound=cfg.max_distance)
+    ahead = ahead.mean()
     near = back[np.isfinite(back)]
-    return float(ahead + (np.minimum(near, cfg.static_scale_min).mean() if len(near) else cfg.static_scale_min))
+    return float(ahead + (np.minimum(near, scale).mean() if len(near) else scale))
+
+
+def _in_view(view: ViewExtent | None, hypotheses: list[np.ndarray], cfg: RigidPolishConfig) -> np.ndarray | None:
+    """The points of a cluster that every one of ``hypotheses`` (each (k, 3), the cluster moved) keeps inside
+    pc2's own field of view ``view``, to be the points the two-way scores of those hypotheses count
+    (:func:`_two_way_score`); None (every point) without a view or when fewer than ``cluster_min_points``
+    are. A point carried out of pc2's view could not have been seen, so it is neither matched nor missed —
+    a near car that comes closer loses its lower part below the sensor's lowest beam, and counting those
+    points as missed favoured motions that keep it where it was — and the same points count for every
+    hypothesis compared, so that none gains by carrying its worst points out of view (docs/learned-flow.md,
+    twenty-eighth round)."""
+    if view is None:
+        return None
+    seen = np.logical_and.reduce([view.contains(h) for h in hypotheses])
+    return seen if seen.sum() >= cfg.cluster_min_points else None
 
 
 def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarray, owner: np.ndarray,
-                   landed: np.ndarray, cfg: RigidPolishConfig) -> None:
+                   landed: np.ndarray, view: ViewExtent | None, cfg: RigidPolishConfig) -> None:
     """Steps 6 and 6b of the module docstring, in place on ``flow`` (N, 3): each object-sized cluster of ``p1``
     moves rigidly, by the median motion or by a two-way fit onto the pc2 points the rest of the static scene
     does not explain (``owner`` (M,): each pc2 point's explaining static row of ``p1``, or −1;
     :func:`_explained`). ``T`` (4, 4): the polished camera motion; ``landed`` (N,): whether each point moved by
-    ``T`` lies within ``static_scale_min`` of a pc2 point (step 4's test, reused by step 6b)."""
+    ``T`` lies within ``static_scale_min`` of a pc2 point (step 4's test, reused by step 6b); ``view``: pc2's
+    field of view for the scores, or None (:func:`_in_view`)."""
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
                               cfg.object_max_share)
     if not objects:
@@ -367,27 +403,31 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
         member[idx] = True
         target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself (owner −1
         # reads member[-1], which the first test has already settled)
+        if len(target) < cfg.cluster_min_points:
+            flow[idx] = apply_transform(_median_start(T, p1[idx], flow[idx]), p1[idx]) - p1[idx]
+            continue
         pts = p1[idx]
         median = _median_start(T, pts, flow[idx])
         moved = apply_transform(median, pts)
-        if len(target) >= cfg.cluster_min_points:
-            best = apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)
-            best_score = _two_way_score(best, target, cfg)
-            if landed[idx].mean() < cfg.cluster_min_fitness:  # step 6b: the camera's motion leaves it off pc2
-                for start in _searched_start(pts, moved, target, median, cfg):
-                    fitted = apply_transform(icp(pts, target, icp_cfg, init=start).transform, pts)
-                    score = _two_way_score(fitted, target, cfg)
-                    rise = abs(float(np.mean(fitted[:, 1] - moved[:, 1])))
-                    if (score < best_score and rise <= cfg.object_search_rise
-                            and np.linalg.norm(fitted - best, axis=1).mean() > cfg.static_scale_min):
-                        best, best_score = fitted, score
-            if best_score < (1 - cfg.object_margin) * _two_way_score(moved, target, cfg):
-                moved = best
+        fits = [apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)]
+        if landed[idx].mean() < cfg.cluster_min_fitness or len(idx) >= cfg.object_search_min_points:  # step 6b
+            fits += [apply_transform(icp(pts, target, icp_cfg, init=start).transform, pts)
+                     for start in _searched_start(pts, moved, target, median, view, cfg)]
+        counted = _in_view(view, [moved, *fits], cfg)
+        best, best_score = fits[0], _two_way_score(fits[0], target, cfg, counted)
+        for fitted in fits[1:]:
+            score = _two_way_score(fitted, target, cfg, counted)
+            rise = abs(float(np.mean(fitted[:, 1] - moved[:, 1])))
+            if (score < best_score and rise <= cfg.object_search_rise
+                    and np.linalg.norm(fitted - best, axis=1).mean() > cfg.static_scale_min):
+                best, best_score = fitted, score
+        if best_score < (1 - cfg.object_margin) * _two_way_score(moved, target, cfg, counted):
+            moved = best
         flow[idx] = moved - pts
 
 
 def _searched_start(pts: np.ndarray, moved: np.ndarray, target: np.ndarray, median: np.ndarray,
-                    cfg: RigidPolishConfig) -> list[np.ndarray]:
+                    view: ViewExtent | None, cfg: RigidPolishConfig) -> list[np.ndarray]:
     """Step 6b's start for the cluster ``pts`` (k, 3), ``moved`` (k, 3) by its median motion ``median`` (4×4):
     ``median`` shifted by the translation within ``object_search`` metres that the histogram of offsets from
     ``moved`` to the ``target`` points (m, 3) around it favours (:func:`training.model.translation_vote.
@@ -401,7 +441,7 @@ def _searched_start(pts: np.ndarray, moved: np.ndarray, target: np.ndarray, medi
     from training.model.translation_vote import VoteConfig, histogram_peaks
 
     reach = cfg.object_search + cfg.max_distance
-    near = target[((target > moved.min(0) - reach) & (target < moved.max(0) + reach)).all(axis=1)]
+    near = target[within_box(target, moved, reach)]
     if len(near) < cfg.cluster_min_points:
         return []
     vote = VoteConfig(max_translation_m=cfg.object_search, candidates=cfg.object_search_peaks)
@@ -411,7 +451,8 @@ def _searched_start(pts: np.ndarray, moved: np.ndarray, target: np.ndarray, medi
     if not bool(found[0]) or not len(shifts):
         return []
     start = median.copy()
-    start[:3, 3] += min(shifts, key=lambda d: _two_way_score(moved + d, target, cfg))
+    counted = _in_view(view, [moved], cfg)
+    start[:3, 3] += min(shifts, key=lambda d: _two_way_score(moved + d, target, cfg, counted))
     return [start]
 
 

@@ -49,13 +49,36 @@ def _angles(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.degrees(np.arctan2(p[:, 0], p[:, 2])), np.degrees(np.arctan2(-p[:, 1], np.hypot(p[:, 0], p[:, 2])))
 
 
+@dataclass(frozen=True)
+class ViewExtent:
+    """The field of view a cloud itself shows (camera frame, degrees and metres): its azimuth range narrowed
+    by a margin on each side, its elevation range and its farthest depth — read from the cloud alone, no
+    calibration. A point outside it could not have been seen in that frame."""
+
+    az_min: float
+    az_max: float
+    el_min: float
+    el_max: float
+    z_max: float
+
+    @classmethod
+    def of(cls, cloud: np.ndarray, margin_deg: float) -> "ViewExtent":
+        """The extent of ``cloud`` (M ≥ 1, 3), azimuth narrowed by ``margin_deg`` on each side."""
+        az, el = _angles(cloud)
+        return cls(float(az.min()) + margin_deg, float(az.max()) - margin_deg, float(el.min()), float(el.max()),
+                   float(np.asarray(cloud)[:, 2].max()))
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of ``points`` (N, 3), same camera frame, lie inside."""
+        az, el = _angles(points)
+        return ((az > self.az_min) & (az < self.az_max) & (el >= self.el_min) & (el <= self.el_max)
+                & (points[:, 2] > 0) & (points[:, 2] <= self.z_max))
+
+
 def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.ndarray:
     """(N,) bool: ``points`` (camera-2 frame) within pc2's azimuth range (less ``margin_deg`` each side),
-    its elevation range and nearer than its farthest point along z."""
-    az2, el2 = _angles(pc2)
-    az, el = _angles(points)
-    return ((az > az2.min() + margin_deg) & (az < az2.max() - margin_deg) & (el >= el2.min()) & (el <= el2.max())
-            & (points[:, 2] > 0) & (points[:, 2] <= pc2[:, 2].max()))
+    its elevation range and nearer than its farthest point along z (:class:`ViewExtent`)."""
+    return ViewExtent.of(pc2, margin_deg).contains(points)
 
 
 def rigid_fit(pc1: np.ndarray, flow: np.ndarray, sigma: float = 0.25, iterations: int = 4,

@@ -60,6 +60,13 @@ def apply_transform(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.asarray(points, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
 
 
+def within_box(points: np.ndarray, around: np.ndarray, margin: float) -> np.ndarray:
+    """Mask (N,) of the ``points`` (N, 3) inside the axis-aligned box of ``around`` (K, 3, K ≥ 1) grown by
+    ``margin`` metres on every side: every point within ``margin`` of one of ``around`` is inside, so a
+    nearest-neighbour search bounded by ``margin`` may skip the rest."""
+    return ((points >= around.min(0) - margin) & (points <= around.max(0) + margin)).all(axis=1)
+
+
 def rigid_flow(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Flow ``T(p) − p`` (N, 3) float32 of a rigid motion ``T`` (4×4) at ``points``."""
     pts = np.asarray(points, dtype=np.float64)

@@ -39,6 +39,7 @@ from evaluation.baselines.base import (
     kabsch,
     rigid_flow,
     twist_to_transform,
+    within_box,
 )
 from evaluation.baselines.normals import estimate_normals
 
@@ -147,9 +148,10 @@ def icp(
         if cfg.method == "point_to_point":
             a, b = src[inl], dst[idx[inl]]
             if cfg.two_way:
-                back_dist, back = cKDTree(src).query(dst, distance_upper_bound=cfg.max_correspondence_distance)
+                reach = dst[within_box(dst, src, cfg.max_correspondence_distance)]  # the others pair with none
+                back_dist, back = cKDTree(src).query(reach, distance_upper_bound=cfg.max_correspondence_distance)
                 near = np.isfinite(back_dist)
-                a, b = np.concatenate([a, src[back[near]]]), np.concatenate([b, dst[near]])
+                a, b = np.concatenate([a, src[back[near]]]), np.concatenate([b, reach[near]])
             w = None if scale_min is None else _cauchy_weights(np.linalg.norm(a - b, axis=1), scale_min)
             step: np.ndarray | None = kabsch(a, b, w)
         else:

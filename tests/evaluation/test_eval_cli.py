@@ -348,3 +348,7 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     flat = _stacked(net, ["rigid-polish"], ("object_search",))[1]
     assert flat.config.object_search == 0.0 and rows[2].config.object_search > 0 and flat.config.rigid_objects
     assert flat.name == "zero + rigid polish (no object search)"
+    # --score-in-view off: the object score counts every point, named so
+    plain_score = _stacked(net, ["rigid-polish"], ("score_in_view",))[1]
+    assert not plain_score.config.score_in_view and rows[2].config.score_in_view
+    assert plain_score.name == "zero + rigid polish (all points scored)"

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from evaluation.baselines.base import apply_transform, transform_error
-from evaluation.rigid_polish import RigidPolishConfig, RigidPolished, polish_rigid
+from evaluation.rigid_polish import RigidPolishConfig, RigidPolished, _in_view, _two_way_score, polish_rigid
+from evaluation.view_prune import ViewExtent
 from evaluation.methods import make_method
 from testkit.rigid_scene import SMALL, box_surface, motion, scene_pair
 
@@ -142,6 +143,36 @@ def test_object_search_finds_a_car_beyond_the_fits_reach(seed):
     assert err_local[is_car].mean() > 1.0 and err_searched[is_car].mean() < 0.1, (err_local[is_car].mean(),
                                                                                   err_searched[is_car].mean())
     assert err_searched[~is_car].mean() <= err_local[~is_car].mean() + 0.002
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_object_score_neither_matches_nor_misses_points_carried_out_of_view(seed):
+    """A near car comes 1.5 m closer and its lower part drops below the sensor's lowest beam (−12°), so frame 2
+    holds only its upper part. Counted as missed, those points make the true motion score like a poor fit;
+    counted by the points that every compared motion keeps in pc2's own view, the true motion lands exactly.
+    A motion that carries the car out of view gains nothing: the points counted are the same for both."""
+    rng = np.random.default_rng(seed)
+    car = box_surface(rng, (-2.0, 1.0, 5.5), (1.8, 1.4, 4.2), 800)
+    truth = car + (0.0, 0.0, -1.5)
+    wall = np.c_[rng.uniform(-8, 8, 1000), rng.uniform(-3, 0.5, 1000), np.full(1000, 25.0)]
+    pc2 = np.concatenate([wall, truth])
+    elevation = np.degrees(np.arctan2(-pc2[:, 1], np.hypot(pc2[:, 0], pc2[:, 2])))
+    pc2 = pc2[elevation >= -12.0]
+    view = ViewExtent.of(pc2, 0.5)
+    seen = view.contains(truth)
+    assert 0.2 < 1 - seen.mean() < 0.8  # a good part of the car left the view
+    cfg = RigidPolishConfig()
+    stayed = car.copy()  # what a method that missed the car says
+    plain = _two_way_score(truth, pc2, cfg)
+    counted = _in_view(view, [truth, stayed], cfg)
+    np.testing.assert_array_equal(counted, seen & view.contains(stayed))
+    assert plain > 0.5 * (1 - seen.mean()) * cfg.static_scale_min  # the dropped points each count as a miss ...
+    assert _two_way_score(truth, pc2, cfg, counted) < 1e-9  # ... and in view the truth lands exactly
+    assert _two_way_score(stayed, pc2, cfg, counted) > 0.1
+    gone = car + (-30.0, 0.0, 0.0)  # carried wholly out of pc2's view (beyond its azimuth range)
+    assert _in_view(view, [gone, truth], cfg) is None  # too few points in both views: every point counts
+    assert _two_way_score(gone, pc2, cfg, None) > _two_way_score(truth, pc2, cfg, None)
+    assert _in_view(None, [truth], cfg) is None
 
 
 EGO = motion(1.0, (0.0, 1.0, 0.0), (0.05, 0.0, -1.3))  # the camera drives 1.3 m forward and turns 1°
@@ -286,6 +317,7 @@ def test_wrapper_names_its_row_and_delegates():
                                           ("cluster_min_fitness", 1.0), ("cluster_iterations", 0),
                                           ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0),
                                           ("object_search", -1.0), ("object_search_peaks", 0), ("object_search_rise", -0.1),
+                                          ("object_search_min_points", -1),
                                           ("ego_check_margin", -0.1), ("ego_check_points", -1),
                                           ("ego_check_voxel", -1.0)])
 def test_config_refuses_impossible_settings(field, value):
