@@ -58,14 +58,22 @@ usable around any method, combines the two:
    plus the mean from those of them within ``max_distance`` back to the moved cluster — is below
    ``(1 − object_margin)`` times the median motion's score. The reverse half brings in the pc2 points near
    the cluster that nothing explains, such as a car's new front end; a cluster that no pc2 point lies near
-   explains nothing and scores as if every pair were ``static_scale_min`` off. A car that the method missed
+   explains nothing and scores as if every pair were ``static_scale_min`` off. With ``score_in_view`` the
+   first mean runs only over the cluster's points that every motion compared keeps inside pc2's own field of
+   view (:class:`evaluation.view_prune.ViewExtent`: its azimuth and elevation range and depth, read from pc2):
+   a point carried out of view could not have been seen, so it is neither matched nor missed. A near car that
+   comes closer loses its lower part below the sensor's lowest beam, and counted as missed those points made
+   its true motion score worse than a fit that leaves it sliding along its own surface (docs/learned-flow.md,
+   twenty-eighth round). A car that the method missed
    wholly and that slid along itself is still not found (under the Cauchy weights the few pairs at its ends
    weigh little, and the score cannot tell that motion from the camera's at this sampling density;
    docs/learned-flow.md, twenty-fourth round).
 6b. (``object_search``) a fit started at the median motion cannot reach a car more than ``max_distance``
    from it (the ICP pairs end there): an oncoming or overtaking car that the method left with the camera's
    motion. When the camera's motion leaves the cluster off pc2 (fewer than ``cluster_min_fitness`` of its
-   points within ``static_scale_min`` of a pc2 point), the cluster is fitted a second time, started at the
+   points within ``static_scale_min`` of a pc2 point), or the cluster holds at least
+   ``object_search_min_points`` points (a near car that the camera overtakes lands on its own surface, yet
+   a small far cluster's score is too noisy to search on), the cluster is fitted a second time, started at the
    median motion shifted by the best-scoring (two-way score) of the ``object_search_peaks`` fullest maxima of
    the histogram of offsets from the moved cluster to the pc2 points around it, within ``object_search``
    metres (:func:`training.model.translation_vote.histogram_peaks`, the vote's histogram per object), of
