@@ -140,9 +140,10 @@ class RigidPolishConfig:
     object_search_min_points: step 6b also searches for every cluster of at least this many points, not only
         for those the camera's motion leaves off pc2 (a near car coming closer lands on its own surface).
         Above the cloud's size: only those (the twenty-seventh round's polish).
-    score_in_view: the two-way score's first mean counts only the moved points that land inside pc2's own
-        field of view (:class:`evaluation.view_prune.ViewExtent`, the view pruning's azimuth margin), when at
-        least ``cluster_min_points`` do (step 6 of the module docstring); false = every moved point counts.
+    score_in_view: the two-way scores of a cluster's motions count in their first mean only the points that
+        every motion compared keeps inside pc2's own field of view (:class:`evaluation.view_prune.ViewExtent`,
+        the view pruning's azimuth margin), when at least ``cluster_min_points`` are (step 6 of the module
+        docstring); false = every point counts.
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
         rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
         than the motion so chosen (steps 1b and 3b of the module docstring); false = the method's motion and
@@ -411,12 +412,12 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
         member[idx] = True
         target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself (owner −1
         # reads member[-1], which the first test has already settled)
-        if len(target) < cfg.cluster_min_points:
-            flow[idx] = apply_transform(_median_start(T, p1[idx], flow[idx]), p1[idx]) - p1[idx]
-            continue
         pts = p1[idx]
         median = _median_start(T, pts, flow[idx])
         moved = apply_transform(median, pts)
+        if len(target) < cfg.cluster_min_points:
+            flow[idx] = moved - pts
+            continue
         fits = [apply_transform(icp(pts, target, icp_cfg, init=median).transform, pts)]
         if landed[idx].mean() < cfg.cluster_min_fitness or len(idx) >= cfg.object_search_min_points:  # step 6b
             fits += [apply_transform(icp(pts, target, icp_cfg, init=start).transform, pts)
@@ -440,8 +441,8 @@ def _searched_start(pts: np.ndarray, moved: np.ndarray, target: np.ndarray, medi
     ``median`` shifted by the translation within ``object_search`` metres that the histogram of offsets from
     ``moved`` to the ``target`` points (m, 3) around it favours (:func:`training.model.translation_vote.
     histogram_peaks`; of its ``object_search_peaks`` fullest maxima rising no more than ``object_search_rise``,
-    the one with the lowest two-way score). Empty when the search is off or finds nothing. Metres, camera
-    frames."""
+    the one with the lowest two-way score, over the points the median motion keeps in ``view``, pc2's field of
+    view, or over all without one). Empty when the search is off or finds nothing. Metres, camera frames."""
     if cfg.object_search == 0:
         return []
     import torch
