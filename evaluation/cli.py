@@ -32,6 +32,31 @@ def _csv(text: str) -> list[str]:
     return [t for t in (x.strip() for x in text.split(",")) if t]
 
 
+POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
+              "score_in_view": "all points scored", "ego_check": "no ego check"}
+"""The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
+
+POLISH_HELP = {
+    "rigid_objects": "the rigid polish's step 6 (RigidPolishConfig.rigid_objects): every object-sized cluster "
+                     "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
+                     "its row named '<net> + rigid polish (no object step)'",
+    "object_search": "the rigid polish's step 6b (RigidPolishConfig.object_search): an object that the camera's "
+                     "motion leaves off frame 2, or of at least 32 points, is also fitted from the translation that "
+                     "a histogram of offsets to the frame-2 points around it favours (within 2.5 m, along the "
+                     "ground); off = from its median motion alone, the row named '<net> + rigid polish (no object "
+                     "search)'",
+    "score_in_view": "the rigid polish's object score (RigidPolishConfig.score_in_view) counts only the points that "
+                     "every motion compared keeps inside frame 2's own field of view; off = every point, the row "
+                     "named '<net> + rigid polish (all points scored)'",
+    "ego_check": "the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
+                 "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
+                 "the scene refused, both by the share of frame 1 explained (each occupied 1 m cube counting "
+                 "once); off = the net's motion and its registration as they come, the row named '<net> + "
+                 "rigid polish (no ego check)'",
+}
+"""Each of those switches' ``--help`` text."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="monoflow-evaluate", allow_abbrev=False, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -68,26 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint with its ego-motion and its movers' motions sharpened by robust "
                         "ICP started from its flow, as its own row '<net> + rigid polish' (evaluation/rigid_polish.py); "
                         "with --view-prune it polishes the view-pruned flow")
-    r.add_argument("--rigid-objects", default="on", choices=("on", "off"),
-                   help="the rigid polish's step 6 (RigidPolishConfig.rigid_objects): every object-sized cluster "
-                        "moves rigidly, by its median motion or its two-way ICP fit; off = the fifth round's polish, "
-                        "its row named '<net> + rigid polish (no object step)'")
-    r.add_argument("--object-search", default="on", choices=("on", "off"),
-                   help="the rigid polish's step 6b (RigidPolishConfig.object_search): an object that the camera's "
-                        "motion leaves off frame 2, or of at least 32 points, is also fitted from the translation that "
-                        "a histogram of offsets to "
-                        "the frame-2 points around it favours (within 2.5 m, along the ground); off = from its median "
-                        "motion alone, the row named '<net> + rigid polish (no object search)'")
-    r.add_argument("--score-in-view", default="on", choices=("on", "off"),
-                   help="the rigid polish's object score (RigidPolishConfig.score_in_view) counts only the points that "
-                        "every motion compared keeps inside frame 2's own field of view; off = every point, the row "
-                        "named '<net> + rigid polish (all points scored)'")
-    r.add_argument("--ego-check", default="on", choices=("on", "off"),
-                   help="the rigid polish's steps 1b and 3b (RigidPolishConfig.ego_check): the camera motion fitted "
-                        "to the net's flow weighed against the rigid vote's, and a registration that explains less of "
-                        "the scene refused, both by the share of frame 1 explained (each occupied 1 m cube counting "
-                        "once); off = the net's motion and its registration as they come, the row named '<net> + "
-                        "rigid polish (no ego check)'")
+    for field in POLISH_OFF:  # the rigid polish's on/off switches, each named after its config field
+        r.add_argument("--" + field.replace("_", "-"), default="on", choices=("on", "off"), help=POLISH_HELP[field])
     r.add_argument("--refine", action="store_true",
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
@@ -128,11 +135,6 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         return tuple(int(t) for t in _csv(text))
     except ValueError:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
-
-
-POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
-              "score_in_view": "all points scored", "ego_check": "no ego check"}
-"""The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 
 def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = ()) -> list:
@@ -231,9 +233,7 @@ def _run(args) -> int:
     wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
                                 ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
-        off = tuple(k for k, flag in (("rigid_objects", args.rigid_objects), ("object_search", args.object_search),
-                                      ("score_in_view", args.score_in_view), ("ego_check", args.ego_check))
-                    if flag == "off")
+        off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
                    for x in (_stacked(m, wrappers, off) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
