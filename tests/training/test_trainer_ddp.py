@@ -1,4 +1,5 @@
-"""Two-process DDP on the CPU (gloo, torchrun) against one process with the same global batch.
+"""Two-process DDP on the CPU (gloo; launched by torchrun, or by :func:`training.runtime.local_ddp.fit_local`)
+against one process with the same global batch.
 
 With ``sync_bn`` (default) batch norm uses the global batch's statistics (training.runtime.sync_bn), so the
 two runs compute the same function: the first step's loss terms agree to float rounding, and after one Adam
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -46,9 +48,14 @@ def test_two_process_gloo_run_matches_one_process(tiny_cache, tmp_path):  # noqa
     trainer.fit()
     trainer.close()
 
-    info = json.loads((tmp_path / "ddp" / "config.json").read_text())
+    _assert_same_first_step(tmp_path / "single", tmp_path / "ddp")
+
+
+def _assert_same_first_step(single_dir, ddp_dir) -> None:
+    """The two-process run in ``ddp_dir`` computed the one-process run's first step (see the module docstring)."""
+    info = json.loads((ddp_dir / "config.json").read_text())
     assert info["config"]["world_size"] == 2
-    r1, r2 = _rows(tmp_path / "single" / "train.csv")[0], _rows(tmp_path / "ddp" / "train.csv")[0]
+    r1, r2 = _rows(single_dir / "train.csv")[0], _rows(ddp_dir / "train.csv")[0]
     terms = [k for k in r1 if k.startswith("l") and "/" in k] + ["loss"]
     # mean of the two processes' losses = the single process's batch mean; the depth terms are the least
     # smooth (a point whose bilinear depth sample sits on the validity threshold is in or out), measured 4e-4
@@ -56,8 +63,8 @@ def test_two_process_gloo_run_matches_one_process(tiny_cache, tmp_path):  # noqa
         assert float(r2[k]) == pytest.approx(float(r1[k]), rel=2e-3 if "depth" in k else 1e-4, abs=1e-6), k
     assert float(r2["grad_norm"]) == pytest.approx(float(r1["grad_norm"]), rel=0.05)
 
-    a = torch.load(tmp_path / "single" / "latest.pt", weights_only=True)["model"]
-    b = torch.load(tmp_path / "ddp" / "latest.pt", weights_only=True)["model"]
+    a = torch.load(single_dir / "latest.pt", weights_only=True)["model"]
+    b = torch.load(ddp_dir / "latest.pt", weights_only=True)["model"]
     assert a.keys() == b.keys()  # plain BatchNorm keys: a DDP checkpoint loads into a plain net
     stats = [k for k in a if "running" in k]
     for k in stats:  # global-batch statistics: not the per-process ones
@@ -66,5 +73,40 @@ def test_two_process_gloo_run_matches_one_process(tiny_cache, tmp_path):  # noqa
     diff = torch.cat([(a[k] - b[k]).abs().flatten() for k in params])
     assert float(diff.max()) <= 2.2e-3  # at most a flipped Adam step, 2 · lr
     assert float((diff > 1e-6).float().mean()) < 0.02  # and that for under 2 % of the weights
-    va, vb = _rows(tmp_path / "single" / "val.csv")[-1], _rows(tmp_path / "ddp" / "val.csv")[-1]
+    va, vb = _rows(single_dir / "val.csv")[-1], _rows(ddp_dir / "val.csv")[-1]
     assert float(vb["val_epe3d"]) == pytest.approx(float(va["val_epe3d"]), rel=0.02)
+
+
+def test_local_processes_run_matches_one_process(tiny_cache, tmp_path):  # noqa: F811
+    """fit_local: the same two-process run without torchrun (a file rendezvous, spawned children), its rank 0's
+    validation before the first step and last row handed back."""
+    from training.runtime.local_ddp import fit_local
+    from training.trainer import Trainer
+
+    kw = dict(steps=1, log_every=1, val_every=1, ckpt_every=1, optim={"lr": 1e-3, "batch_size": 2})
+    single = tiny_config(tiny_cache, tmp_path / "single", **kw)
+    trainer = Trainer(single)
+    before = trainer.validate()
+    trainer.fit()
+    trainer.close()
+    first, last = fit_local(tiny_config(tiny_cache, tmp_path / "ddp", **kw), 2, validate_first=True, timeout_s=120)
+    assert first["val_epe3d"] == pytest.approx(before["val_epe3d"], rel=1e-5)
+    assert last["step"] == 1 and "val_epe3d" in last
+    _assert_same_first_step(tmp_path / "single", tmp_path / "ddp")
+    # finished: a second call only validates (as a resumed demo does), and leaves the run as it was
+    again_first, again = fit_local(tiny_config(tiny_cache, tmp_path / "ddp", **kw), 2, resume=True,
+                                   validate_first=True, timeout_s=120)
+    assert again_first is None and again["val_epe3d"] == pytest.approx(last["val_epe3d"], rel=1e-5)
+
+
+def test_local_processes_stop_with_the_child_s_one_line_error(tmp_path):
+    from core.errors import MonoflowError
+    from training.runtime.local_ddp import ChildFailed, fit_local
+
+    missing = tmp_path / "no-cache"
+    with pytest.raises(ChildFailed) as err:
+        fit_local(tiny_config(missing, tmp_path / "run"), 2, timeout_s=60)
+    text = str(err.value)
+    assert isinstance(err.value, MonoflowError) and "\n" not in text
+    # whichever child failed first (the spawner then stops the other, which may not get to write its own)
+    assert re.match(r"training process [01]: ", text) and str(missing) in text
