@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from training.knn import knn
 from training.model.ego_motion import weighted_planar_fit, weighted_rigid_fit
-from training.model.translation_vote import VoteConfig, explained, per_hypothesis, vote_hypotheses
+from training.model.translation_vote import (VoteConfig, explained, gather_nearest, nearest, per_hypothesis,
+                                             vote_hypotheses)
 
 
 @dataclass(frozen=True)
@@ -73,18 +73,17 @@ class RigidVoteConfig:
 
 def trimmed_rounds(a: Tensor, b: Tensor, R: Tensor, t: Tensor,
                    cfg: RigidVoteConfig) -> tuple[Tensor, Tensor, Tensor]:
-    """Step 2 of the module docstring for H starting motions at once: ``a`` (H, M, 3) onto ``b`` (H, P, 3),
-    started at ``R`` (H, 3, 3), ``t`` (H, 3), metres. Returns the fitted ``(R, t)`` and (H,) the inlier count
+    """Step 2 of the module docstring for H starting motions at once: ``a`` (H, M, 3) onto ``b`` (H, P, 3), or
+    (B, P, 3) with every cloud's hypotheses in a row (:func:`~training.model.translation_vote.nearest`), started at ``R`` (H, 3, 3), ``t`` (H, 3), metres. Returns the fitted ``(R, t)`` and (H,) the inlier count
     of the last round (a round with fewer than ``min_inliers`` inliers is not taken)."""
     fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
     count = torch.zeros(a.shape[0], dtype=a.dtype, device=a.device)
     for radius in cfg.radii_m:
         for _ in range(cfg.rounds):
-            d2, nn = knn(a @ R.transpose(1, 2) + t[:, None], b, 1)  # KD-tree on CPU, dense on CUDA
-            inlier = (d2[..., 0] < radius * radius).to(a.dtype)
-            nn = nn[..., 0]
+            d2, nn = nearest(a @ R.transpose(1, 2) + t[:, None], b)  # KD-tree on CPU, dense on CUDA
+            inlier = (d2 < radius * radius).to(a.dtype)
             count = inlier.sum(1)
-            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
+            q = gather_nearest(b, nn)
             R_new, t_new = fit(a, q, inlier)
             ok = count >= cfg.min_inliers
             R = torch.where(ok[:, None, None], R_new, R)
@@ -105,10 +104,10 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     cfg = config or RigidVoteConfig()
     h = vote_hypotheses(xyz1, xyz2, cfg.vote)
     B, K = h.t.shape[:2]
-    # every hypothesis against its own copy of the clouds, (B·K, ·, 3), in float64
+    # every hypothesis with its own copy of frame 1, (B·K, M, 3), searching its cloud's frame 2, in float64
     x1 = xyz1.detach().double()
     a = per_hypothesis(x1, K)
-    b = per_hypothesis((xyz2 if target is None else target).detach().double(), K)
+    b = (xyz2 if target is None else target).detach().double()
     t0 = h.t.double().reshape(B * K, 3)
     eye = torch.eye(3, dtype=a.dtype, device=a.device).expand(B * K, 3, 3)
     R, t, count = trimmed_rounds(a, b, eye.clone(), t0.clone(), cfg)
@@ -118,7 +117,7 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     # step 3 of the vote with the whole motion: the hypothesis that explains the most frame-1 points (each
     # weighted by its range with range_weighted), against the vote's own frame-2 samples, whose spacing the
     # frame-1 spacing matches
-    samples = b if target is None else per_hypothesis(xyz2.detach().double(), K)
+    samples = b if target is None else xyz2.detach().double()
     weights = None
     if cfg.range_weighted:
         o = xyz1.new_zeros(B, 3) if origin is None else origin

@@ -69,16 +69,39 @@ def _binomial_blur(grid: Tensor) -> Tensor:
     return torch.nn.functional.conv3d(grid[:, None], kernel, padding=1)[:, 0]
 
 
+def nearest(moved: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
+    """Each point of ``moved`` (H, M, 3)'s nearest point of ``b``: (squared distance (H, M), index (H, M)).
+    ``b`` is (H, N, 3), one cloud per row, or (B, N, 3) with H a multiple of B: rows ``h·B/H … `` of ``moved``
+    (every cloud's hypotheses in a row, as :func:`per_hypothesis` lays them out) all search cloud ``h // (H/B)``,
+    so each cloud is indexed once (one KD-tree per cloud on the CPU, :func:`training.knn.knn`)."""
+    from training.knn import knn
+
+    H, M = moved.shape[:2]
+    B = b.shape[0]
+    if H % B:
+        raise ValueError(f"{H} hypotheses do not group over {B} clouds")
+    d2, idx = knn(moved.reshape(B, (H // B) * M, 3), b, 1)
+    return d2.reshape(H, M), idx.reshape(H, M)
+
+
+def gather_nearest(b: Tensor, idx: Tensor) -> Tensor:
+    """The points (H, M, 3) of ``b`` (H or B, N, 3; see :func:`nearest`) at ``idx`` (H, M)."""
+    H, M = idx.shape
+    B = b.shape[0]
+    flat = idx.reshape(B, (H // B) * M)
+    return torch.gather(b, 1, flat[..., None].expand(-1, -1, 3)).reshape(H, M, 3)
+
+
 def _refine(a: Tensor, b: Tensor, t: Tensor, radii: tuple[float, ...]) -> Tensor:
-    """Translations ``t`` (H, 3) of ``a`` (H, M, 3) onto ``b`` (H, N, 3), one per hypothesis, refined by
-    trimmed nearest-neighbour matching: two rounds per radius, widest first, each
+    """Translations ``t`` (H, 3) of ``a`` (H, M, 3) onto ``b`` (H or B, N, 3, :func:`nearest`), one per
+    hypothesis, refined by trimmed nearest-neighbour matching: two rounds per radius, widest first, each
     ``t ← mean(q_nn(i) − p_i)`` over the points whose nearest neighbour lies within the radius."""
     for h in radii:
         for _ in range(2):
-            dist, nn = torch.cdist(a + t[:, None], b).min(dim=2)
-            inlier = (dist < h).to(a.dtype)
+            d2, nn = nearest(a + t[:, None], b)
+            inlier = (d2 < h * h).to(a.dtype)
             count = inlier.sum(1)
-            q = torch.gather(b, 1, nn[..., None].expand(-1, -1, 3))
+            q = gather_nearest(b, nn)
             mean = ((q - a) * inlier[..., None]).sum(1) / count.clamp_min(1)[:, None]
             t = torch.where(count[:, None] > 0, mean, t)
     return t
@@ -91,12 +114,22 @@ def per_hypothesis(x: Tensor, k: int) -> Tensor:
 
 
 def explained(moved: Tensor, b: Tensor, spacing: Tensor, weights: Tensor | None = None) -> Tensor:
-    """How many of the moved frame-1 points ``moved`` (H, M, 3) have a point of ``b`` (H, N, 3) within their
-    own ``spacing`` (H, M): a sparse far point counts as readily as a dense near one, so the count
-    measures how much of the scene a motion explains (step 3 of the module docstring). ``weights`` (H, M):
-    what each such point counts (default 1)."""
-    hit = (torch.cdist(moved, b).min(dim=2).values < spacing).to(moved.dtype)
+    """How many of the moved frame-1 points ``moved`` (H, M, 3) have a point of ``b`` (H or B, N, 3,
+    :func:`nearest`) within their own ``spacing`` (H, M): a sparse far point counts as readily as a dense near
+    one, so the count measures how much of the scene a motion explains (step 3 of the module docstring).
+    ``weights`` (H, M): what each such point counts (default 1)."""
+    hit = (nearest(moved, b)[0] < spacing * spacing).to(moved.dtype)
     return (hit if weights is None else hit * weights).sum(1)
+
+
+def spacing_of(x: Tensor) -> Tensor:
+    """Each point's distance (B, M) to the nearest *other* point of its cloud ``x`` (B, M, 3), metres (0 for a
+    point with a duplicate)."""
+    from training.knn import knn
+
+    if x.shape[1] < 2:
+        return x.new_full(x.shape[:2], float("inf"))
+    return knn(x, x, 2)[0][..., 1].sqrt()
 
 
 class VoteHypotheses(NamedTuple):
@@ -113,6 +146,33 @@ class VoteHypotheses(NamedTuple):
     found: Tensor
 
 
+def _pair_offsets(x1: Tensor, x2: Tensor, R: float) -> tuple[Tensor, Tensor, Tensor]:
+    """The offsets ``q_j − p_i`` (P, 3) between ``x1`` (B, M, 3) and ``x2`` (B, N, 3) that can lie in the cube
+    ``|d|_∞ ≤ R``, with their cloud ``b`` (P,) and frame-1 index ``i`` (P,). On the CPU only the pairs within
+    ``R·√3`` (the cube's corner, plus a millimetre) of each other, from a KD-tree range search per cloud: at
+    the net's 512 points about a tenth of all pairs, the same offsets in the cube; elsewhere every pair."""
+    B, M, N = x1.shape[0], x1.shape[1], x2.shape[1]
+    if x1.device.type != "cpu":
+        which = torch.arange(B, device=x1.device).repeat_interleave(M * N)
+        first = torch.arange(M, device=x1.device).repeat_interleave(N).repeat(B)
+        return which, first, (x2[:, None, :, :] - x1[:, :, None, :]).reshape(-1, 3)
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from training.knn import NonFiniteError
+
+    a, b = x1.double().numpy(), x2.double().numpy()
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        raise NonFiniteError("translation vote: non-finite point coordinates (NaN or inf)")
+    parts = []
+    for k in range(B):
+        pairs = cKDTree(a[k]).sparse_distance_matrix(cKDTree(b[k]), R * 3**0.5 + 1e-3, output_type="ndarray")
+        i, j = torch.from_numpy(pairs["i"].astype(np.int64)), torch.from_numpy(pairs["j"].astype(np.int64))
+        parts.append((torch.full_like(i, k), i, x2[k, j] - x1[k, i]))
+    which, first, d = (torch.cat(p) for p in zip(*parts))
+    return which, first, d
+
+
 @torch.no_grad()
 def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None,
                     weights: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -123,20 +183,19 @@ def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     mover)."""
     cfg = config or VoteConfig()
     x1, x2 = xyz1.detach().float(), xyz2.detach().float()
-    B, N = x1.shape[0], x2.shape[1]
-    d = (x2[:, None, :, :] - x1[:, :, None, :]).reshape(B, -1, 3)  # (B, M·N, 3) offsets q_j − p_i
+    B = x1.shape[0]
     R, c = cfg.max_translation_m, cfg.cell_m
     n = int(round(2 * R / c))
+    which, first, d = _pair_offsets(x1, x2, R)
     cell = torch.floor((d + R) / c).long()
     inside = ((cell >= 0) & (cell < n)).all(dim=-1)
-    flat = (cell[..., 0] * n + cell[..., 1]) * n + cell[..., 2]
-    flat = torch.where(inside, flat, torch.zeros_like(flat))
-    del d, cell
-    counts = torch.zeros(B, n * n * n, dtype=x1.dtype, device=x1.device)
-    vote = inside.to(x1.dtype)
+    which, first, cell = which[inside], first[inside], cell[inside]
+    flat = ((which * n + cell[:, 0]) * n + cell[:, 1]) * n + cell[:, 2]
+    vote = torch.ones(len(flat), dtype=x1.dtype, device=x1.device)
     if weights is not None:
-        vote = vote * weights.detach().to(x1.dtype)[:, :, None].expand(-1, -1, N).reshape(B, -1)
-    counts.scatter_add_(1, flat, vote)
+        vote = weights.detach().to(x1.dtype)[which, first]
+    counts = torch.zeros(B * n * n * n, dtype=x1.dtype, device=x1.device).index_add_(0, flat, vote)
+    found = torch.zeros(B, dtype=torch.bool, device=x1.device).index_fill_(0, which, True)
     grid = _binomial_blur(counts.reshape(B, n, n, n))
     peak = grid == torch.nn.functional.max_pool3d(grid[:, None], 3, stride=1, padding=1)[:, 0]
     score = torch.where(peak, grid, torch.full_like(grid, -1.0)).reshape(B, -1)
@@ -144,7 +203,7 @@ def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
     ix, iy, iz = best // (n * n), (best // n) % n, best % n
     t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
-    return t, inside.any(dim=1)
+    return t, found
 
 
 @torch.no_grad()
@@ -156,13 +215,12 @@ def vote_hypotheses(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     B = x1.shape[0]
     t, found = histogram_peaks(x1, x2, cfg)
     k = t.shape[1]
-    # every hypothesis against its own copy of the clouds, (B·k, ·, 3)
-    a, b = per_hypothesis(x1, k), per_hypothesis(x2, k)
-    t = _refine(a, b, t.reshape(B * k, 3), cfg.bandwidths_m)
-    self_d = torch.cdist(x1, x1)  # each frame-1 point's sampling spacing, at least the last radius
-    self_d.diagonal(dim1=1, dim2=2).fill_(float("inf"))
-    spacing = self_d.min(dim=2).values.clamp_min(cfg.bandwidths_m[-1])
-    matched = explained(a + t[:, None], b, per_hypothesis(spacing, k)).reshape(B, k)
+    # every hypothesis with its own copy of frame 1, (B·k, M, 3), searching its cloud's frame 2
+    a = per_hypothesis(x1, k)
+    t = _refine(a, x2, t.reshape(B * k, 3), cfg.bandwidths_m)
+    # each frame-1 point's sampling spacing (its nearest other frame-1 point), at least the last radius
+    spacing = spacing_of(x1).clamp_min(cfg.bandwidths_m[-1])
+    matched = explained(a + t[:, None], x2, per_hypothesis(spacing, k)).reshape(B, k)
     return VoteHypotheses(t.reshape(B, k, 3), matched, spacing, found)
 
 
