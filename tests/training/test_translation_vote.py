@@ -52,6 +52,42 @@ def test_offsets_outside_the_search_cube_give_zero():
     assert torch.equal(vote_translation(pc1, far, VoteConfig(max_translation_m=3.0)), torch.zeros(1, 3))
 
 
+def test_the_histogram_counts_the_offsets_in_the_cube_and_nothing_else():
+    """The CPU's range search hands the histogram exactly the offsets inside the cube: its counts equal a
+    count over every pair (the search ball reaches the cube's corners), weighted or not."""
+    from training.model.translation_vote import _pair_offsets
+
+    g = torch.Generator().manual_seed(3)
+    x1 = torch.rand(2, 300, 3, generator=g) * torch.tensor([30.0, 4.0, 40.0])
+    x2 = x1[:, torch.randperm(300, generator=g)[:250]] + torch.tensor([0.4, 0.0, 1.3])
+    R = 3.0
+    which, first, d = _pair_offsets(x1, x2, R)
+    every = (x2[:, None, :, :] - x1[:, :, None, :])  # (B, M, N, 3)
+    inside = (every.abs() <= R).all(-1)
+    got = (d.abs() <= R).all(-1)
+    assert int(got.sum()) == int(inside.sum()) > 0  # no offset of the cube is missed, none counted twice
+    assert int((~got).sum()) > 0  # the ball holds a few outside the cube (its corners), which the count drops
+    for b in range(2):  # every frame-1 point of every cloud holds its own offsets in the cube
+        sel = (which == b) & got
+        assert torch.equal(torch.bincount(first[sel], minlength=300), inside[b].sum(1))
+
+
+def test_nearest_groups_every_cloud_s_hypotheses_on_one_search():
+    from training.model.translation_vote import gather_nearest, nearest, per_hypothesis
+
+    g = torch.Generator().manual_seed(5)
+    a = torch.rand(2, 40, 3, generator=g) * 10
+    b = torch.rand(2, 60, 3, generator=g) * 10
+    moved = per_hypothesis(a, 3) + torch.rand(6, 1, 3, generator=g)
+    d2, idx = nearest(moved, b)
+    d2c, idxc = nearest(moved, per_hypothesis(b, 3))  # every hypothesis with its own copy
+    assert torch.equal(idx, idxc) and torch.allclose(d2, d2c)
+    q = gather_nearest(b, idx)
+    assert torch.allclose(((q - moved) ** 2).sum(-1), d2, atol=1e-5)
+    brute = torch.cdist(moved.double(), per_hypothesis(b, 3).double()).min(dim=2)
+    assert torch.equal(idx, brute.indices)
+
+
 def test_a_bad_search_is_refused():
     with pytest.raises(ValueError):
         VoteConfig(cell_m=0.0)
