@@ -6,10 +6,7 @@ One entry point, :func:`knn`, with two backends that return the same answer:
   choice on CPU (several times to tens of times faster than a dense distance matrix at 8192 points).
 - ``"torch"``: dense squared distances + ``topk``, chunked over the query points so that memory stays
   bounded; the choice on CUDA.
-- ``"auto"``: ``"kdtree"`` for CPU tensors, ``"torch"`` otherwise; on the CPU, clouds of at most
-  :data:`DIRECT_MAX_PAIRS` (query, reference) pairs per batch element get every distance directly
-  (``(q − r)²`` summed, then ``topk``): a KD-tree's set-up costs more than the whole search there (the
-  coarse pyramid levels, 4–64 points: 2–9× faster).
+- ``"auto"``: ``"kdtree"`` for CPU tensors, ``"torch"`` otherwise.
 
 Indices never carry gradient, so everything here runs under :func:`torch.no_grad`. The squared distances
 returned are exact and sorted ascending (the KD-tree's float64 distances; the dense backend recomputes
@@ -40,10 +37,6 @@ DEFAULT_BLOCK_ELEMENTS = 1 << 25
 # in the KD-tree backend; smaller ones use one (thread start-up would cost more than it saves).
 PARALLEL_MIN_NEIGHBOURS = 1 << 14
 KDTREE_WORKERS = -1
-NON_FINITE = ("knn: non-finite point coordinates (NaN or inf) reached the neighbour search: the net diverged "
-              "(lower --optim.lr?) or its weights or inputs are not finite")
-# "auto" on the CPU: at most this many (query, reference) pairs per batch element are searched directly.
-DIRECT_MAX_PAIRS = 8192
 
 
 def knn(
@@ -70,12 +63,9 @@ def knn(
         Among exactly tied distances the order of indices is unspecified (backends may differ there).
     """
     _check(query, ref, k, backend)
-    auto = backend == "auto"
     if backend == "auto":
         backend = "kdtree" if query.device.type == "cpu" else "torch"
     with torch.no_grad():
-        if backend == "kdtree" and auto and query.shape[1] * ref.shape[1] <= DIRECT_MAX_PAIRS:
-            return _knn_direct(query, ref, k)
         if backend == "kdtree":
             return _knn_kdtree(query, ref, k)
         return _exact_sorted(query, ref, _knn_torch(query, ref, k, chunk_size))
@@ -111,7 +101,8 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     q = query.detach().to("cpu", torch.float64).numpy()
     r = (ref[:1] if shared else ref).detach().to("cpu", torch.float64).numpy()
     if not (np.isfinite(q).all() and np.isfinite(r).all()):
-        raise NonFiniteError(NON_FINITE)
+        raise NonFiniteError("knn: non-finite point coordinates (NaN or inf) reached the neighbour search: the net "
+                             "diverged (lower --optim.lr?) or its weights or inputs are not finite")
     B, M = q.shape[:2]
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)
@@ -127,15 +118,6 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
         idx[b] = torch.from_numpy(i.reshape(M, k).astype("int64", copy=False))
         dist2[b] = torch.from_numpy(d.reshape(M, k)).square_()
     return dist2.to(query.device, query.dtype), idx.to(query.device)
-
-
-def _knn_direct(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """Every squared distance from the coordinate differences (no cancellation), ``topk`` sorted ascending."""
-    if not (torch.isfinite(query).all() and torch.isfinite(ref).all()):
-        raise NonFiniteError(NON_FINITE)
-    d2 = (query.detach()[:, :, None, :] - ref.detach()[:, None, :, :]).square_().sum(-1)
-    dist2, idx = d2.topk(k, dim=-1, largest=False, sorted=True)
-    return dist2, idx
 
 
 def _knn_torch(query: Tensor, ref: Tensor, k: int, chunk_size: int | None) -> Tensor:

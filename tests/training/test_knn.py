@@ -42,27 +42,6 @@ def test_against_brute_force(backend):
     assert_same_neighbours(d2, idx, bd2, bidx)
 
 
-@pytest.mark.parametrize("m, n, k", [(16, 16, 6), (64, 64, 11), (128, 64, 8), (4, 16, 4)])
-def test_auto_searches_small_clouds_directly_with_the_kd_tree_s_answer(m, n, k):
-    """Coarse levels (at most DIRECT_MAX_PAIRS pairs) skip the KD-tree under "auto": same neighbours, same
-    ascending squared distances, also far from the origin; non-finite input is still refused."""
-    from training.knn import DIRECT_MAX_PAIRS, NonFiniteError
-
-    assert m * n <= DIRECT_MAX_PAIRS
-    g = torch.Generator().manual_seed(m + n)
-    ref = torch.rand(3, n, 3, generator=g) * 20.0 + torch.tensor([5.0, 1.0, 30.0])
-    query = torch.rand(3, m, 3, generator=g) * 20.0 + torch.tensor([5.0, 1.0, 30.0])
-    d_a, i_a = knn(query, ref, k, "auto")
-    d_t, i_t = knn(query, ref, k, "kdtree")
-    assert torch.all(d_a[..., 1:] >= d_a[..., :-1])
-    assert_same_neighbours(d_a, i_a, d_t, i_t)
-    bd2, bidx = brute_force(query, ref, k)
-    assert_same_neighbours(d_a, i_a, bd2, bidx)
-    query[1, 2, 0] = float("nan")
-    with pytest.raises(NonFiniteError):
-        knn(query, ref, k, "auto")
-
-
 def test_one_cloud_expanded_over_the_batch_gives_every_element_its_own_answer():
     """A ref expanded over the batch (stride 0, the rigid vote's hypotheses) is searched with one KD-tree; the
     answer is the one a contiguous copy gets, and each batch element keeps its own queries."""

@@ -194,3 +194,45 @@ def test_sampling_can_be_reused_by_a_second_pass():
         net(pc1, pc2, f1, f2, sampling=Sampling(pc1=bad.pc1[:4], pc2=bad.pc2))
     with pytest.raises(InputError, match=r"sampling.pc2\[0\] must index"):
         net(pc1, pc2, f1, f2, sampling=Sampling(pc1=bad.pc1, pc2=[bad.pc2[0] + 1000, *bad.pc2[1:]]))
+
+
+@pytest.mark.parametrize("norm", ["layer", "batch"])
+def test_a_second_pass_on_the_same_frame_2_reuses_its_encoding(norm, monkeypatch):
+    """The trainer's dynamic pass net(pc1 + sf_s, pc2, sampling=…) takes the first pass's frame-2 encoder levels
+    (shifted to its own centre) instead of encoding pc2 again: the same flows and the same gradients as
+    encoding it anew, to float rounding, with frame 2 encoded once; never under batch norm (batch statistics)."""
+    from training.model.halflownet import HALFlowSampling
+
+    torch.manual_seed(7)
+    net = HALFlowNet(HALFlowConfig(**SMALL, norm=norm, ego_head=True)).train()
+    pc1, pc2, _, _, flow = scene(seed=7)
+    static = flow + torch.tensor([0.3, 0.0, 0.5])
+    encoded = []
+    real = net._encode
+    monkeypatch.setattr(net, "_encode", lambda xyz, *a: encoded.append(xyz.shape[0]) or real(xyz, *a))
+
+    def run(reuse: bool):
+        net.zero_grad()
+        first = net(pc1, pc2)
+        given = first.sampling if reuse else Sampling(pc1=first.sampling.pc1, pc2=first.sampling.pc2)
+        second = net(pc1 + static, pc2, sampling=given)
+        loss = sum((f ** 2).mean() for f in first.flows + second.flows)
+        loss.backward()
+        return second.flows, {k: p.grad.clone() for k, p in net.named_parameters() if p.grad is not None}
+
+    assert isinstance(net(pc1, pc2).sampling, HALFlowSampling)
+    encoded.clear()
+    anew, grads_anew = run(False)
+    assert encoded == [4, 4]  # both passes encode pc1 and pc2 stacked (B = 2)
+    encoded.clear()
+    reused, grads_reused = run(True)
+    assert encoded == ([4, 2] if norm == "layer" else [4, 4])  # frame 2 taken from the first pass
+    for a, b in zip(anew, reused):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    assert grads_anew.keys() == grads_reused.keys()
+    for k in grads_anew:
+        torch.testing.assert_close(grads_anew[k], grads_reused[k], rtol=1e-3, atol=1e-5, msg=k)
+    # another pc2 tensor (equal values) is not taken for the same frame: encoded anew
+    encoded.clear()
+    net(pc1 + static, pc2.clone(), sampling=net(pc1, pc2).sampling)
+    assert encoded == [4, 4]

@@ -59,8 +59,10 @@ def _assert_same_first_step(single_dir, ddp_dir) -> None:
     terms = [k for k in r1 if k.startswith("l") and "/" in k] + ["loss"]
     # mean of the two processes' losses = the single process's batch mean; the depth terms are the least
     # smooth (a point whose bilinear depth sample sits on the validity threshold is in or out), measured 4e-4
+    # to 1.8e-3, and so are the sums that hold them (a level's weighted total, the loss: 1.4e-4 measured)
     for k in terms:
-        assert float(r2[k]) == pytest.approx(float(r1[k]), rel=2e-3 if "depth" in k else 1e-4, abs=1e-6), k
+        rough = "depth" in k or "weighted" in k or k == "loss"
+        assert float(r2[k]) == pytest.approx(float(r1[k]), rel=2e-3 if rough else 1e-4, abs=1e-6), k
     assert float(r2["grad_norm"]) == pytest.approx(float(r1["grad_norm"]), rel=0.05)
 
     a = torch.load(single_dir / "latest.pt", weights_only=True)["model"]

@@ -52,6 +52,31 @@ class _Pyramid:
     samples: list[Tensor]
 
 
+@dataclass
+class _Frame2:
+    """One pass's frame-2 encoder levels L0..L2 (centred by ``centre``, before the vote's pre-alignment) and
+    what they were computed from: the pc2 and feat2 arguments themselves, the mode and whether autograd ran."""
+
+    pc2: Tensor
+    feat2: Tensor | None
+    centre: Tensor
+    training: bool
+    grad: bool
+    levels: _Pyramid
+
+
+@dataclass
+class HALFlowSampling(Sampling):
+    """:class:`Sampling` with the pass's frame-2 encoder levels: a second pass given this sampling and the
+    *same* pc2 and feat2 tensors (the trainer's dynamic pass, ``net(pc1 + sf_s, pc2, sampling=…)``) takes them
+    instead of encoding frame 2 again. The encoder sees only offsets between points (and frame 2's own
+    features), so the levels do not depend on the centre the pass subtracts, which moves with pc1: they are
+    shifted to the second pass's centre. Gradients reach the encoder through both passes, as when it runs
+    twice; never with batch norm, whose statistics would then come from another batch."""
+
+    frame2: _Frame2 | None = None
+
+
 class HALFlowNet(nn.Module):
     """Hierarchical attention scene-flow net; see the module docstring and :class:`HALFlowConfig`."""
 
@@ -229,6 +254,7 @@ class HALFlowNet(nn.Module):
         Returns:
             :class:`FlowOutput` with flows at L0..L3 (default 2048, 1024, 256, 64 points).
         """
+        feat2_arg = feat2
         feat1, feat2 = self._check(pc1, pc2, feat1, feat2)
         if sampling is not None:
             self._check_sampling(sampling, pc1, pc2)
@@ -238,7 +264,14 @@ class HALFlowNet(nn.Module):
         centre = pc1.mean(dim=1, keepdim=True) if cfg.center_input else pc1.new_zeros(pc1.shape[0], 1, 3)
         x1, x2 = pc1 - centre, pc2 - centre
 
-        if pc1.shape[1] == pc2.shape[1]:  # one pass over both clouds: shared weights, half the loops
+        prev = getattr(sampling, "frame2", None)
+        if (prev is not None and prev.pc2 is pc2 and prev.feat2 is feat2_arg and prev.training == self.training
+                and prev.grad == torch.is_grad_enabled() and cfg.norm != "batch"):  # HALFlowSampling: reuse frame 2
+            p1 = self._encode(x1, feat1, given1)
+            levels = prev.levels
+            p2 = _Pyramid([x + (prev.centre - centre) for x in levels.xyz], list(levels.feat), list(levels.idx),
+                          list(levels.samples))
+        elif pc1.shape[1] == pc2.shape[1]:  # one pass over both clouds: shared weights, half the loops
             given = [None if a is None else torch.cat([a, b]) for a, b in zip(given1, given2)]
             both = self._encode(torch.cat([x1, x2]), torch.cat([feat1, feat2]), given)
             B = pc1.shape[0]
@@ -247,6 +280,8 @@ class HALFlowNet(nn.Module):
             p2 = _Pyramid(*[[t[B:] for t in ts] for ts in parts])
         else:
             p1, p2 = self._encode(x1, feat1, given1), self._encode(x2, feat2, given2)
+        frame2 = _Frame2(pc2, feat2_arg, centre, self.training, torch.is_grad_enabled(),
+                         _Pyramid(list(p2.xyz), list(p2.feat), list(p2.idx), list(p2.samples)))
 
         shift, turn = None, None
         if cfg.translation_vote:  # pre-align frame 2 by the voted camera translation (encoder features are
@@ -339,7 +374,7 @@ class HALFlowNet(nn.Module):
             points=[gather_points(pc1, i) for i in idx1],
             indices2=idx2,
             points2=[gather_points(pc2, i) for i in idx2],
-            sampling=Sampling(pc1=p1.samples, pc2=p2.samples),
+            sampling=HALFlowSampling(pc1=p1.samples, pc2=p2.samples, frame2=frame2),
             rigid_flows=[] if rigids[0] is None else rigids,
             gate_gaps=[] if gaps[0] is None else gaps,
             gates=[] if gates[0] is None else gates,
