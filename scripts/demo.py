@@ -20,6 +20,7 @@ and the two test splits are evaluated at the same time, one process of one threa
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -38,7 +39,6 @@ class SideProcess:
         self.command, self.log, self.timeout_s = command, log, timeout_s
 
     def __enter__(self) -> "SideProcess":
-        import os
         import subprocess
 
         env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
@@ -75,10 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width-scale", type=float, default=0.5, help="net width multiplier (paper: 1)")
     p.add_argument("--depth-steps", type=int, default=600, help="depth/pose training steps (--depth learned)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--train-processes", type=int, default=2,
+    p.add_argument("--train-processes", type=int, default=min(2, os.cpu_count() or 1),
                    help="data-parallel training processes of one thread each (training.runtime.local_ddp; 1: one "
-                        "process with torch's threads). The same run up to float summation order; two ran the "
-                        "demo's steps 1.26x faster than one on 2 cores")
+                        "process with torch's threads; default: 2, 1 on a one-core machine). The same run up to float "
+                        "summation order; two ran the demo's steps 1.26x faster than one on 2 cores")
     args = p.parse_args(argv)
 
     from core.errors import run_cli
