@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--train-processes", type=int, default=min(2, os.cpu_count() or 1),
                    help="data-parallel training processes of one thread each (training.runtime.local_ddp; 1: one "
                         "process with torch's threads; default: 2, 1 on a one-core machine). The same run up to float "
-                        "summation order; two ran the demo's steps 1.26x faster than one on 2 cores")
+                        "summation order; two ran the demo's steps 1.17-1.26x faster than one on 2 cores")
     args = p.parse_args(argv)
 
     from core.errors import run_cli

@@ -1,11 +1,12 @@
 """Data-parallel training on this machine's own cores, without ``torchrun``: ``P`` processes of one thread each.
 
 Why: the net's step is thousands of small operations, which a second intra-op thread barely speeds up; on the
-demo's 2-core box two processes of one thread each ran the demo preset 1.26× faster than one process of two
-threads (1.56 against 1.96 s per step, BENCHMARKS.md). The run is the same one: the global batch is split
-evenly over the processes, every pair's draws depend only on (seed, epoch, pair) and DDP averages the gradients,
-so ``P`` processes train like one process with that batch up to float summation order
-(``tests/training/test_trainer_ddp.py`` pins the first step; :mod:`training.trainer`).
+demo's 2-core box two processes of one thread each ran the demo preset 1.17–1.26× faster than one process of
+two threads (1.49 against 1.74 s per step; 1.56 against 1.96 s before the vote's and the dynamic pass's
+speed-ups; BENCHMARKS.md). The run is the same one: the global batch is split evenly over the processes, every
+pair's draws depend only on (seed, epoch, pair) and DDP averages the gradients, so ``P`` processes train like
+one process with that batch up to float summation order (``tests/training/test_trainer_ddp.py`` pins the first
+step; the demo's net trained either way scored within a millimetre on every row: docs/learned-flow.md).
 
 The processes meet through a file in a fresh temporary folder (gloo, no network port to collide on), every
 collective waits at most ``timeout_s``, and the children load their data in-process (``data.workers`` 0: a
