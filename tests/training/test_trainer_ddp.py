@@ -112,3 +112,20 @@ def test_local_processes_stop_with_the_child_s_one_line_error(tmp_path):
     assert isinstance(err.value, MonoflowError) and "\n" not in text
     # whichever child failed first (the spawner then stops the other, which may not get to write its own)
     assert re.match(r"training process [01]: ", text) and str(missing) in text
+
+
+@pytest.mark.slow
+def test_local_processes_resume_to_the_uninterrupted_run_s_weights(tiny_cache, tmp_path):  # noqa: F811
+    """Two processes stopped after 2 of 4 steps and resumed reach the weights of a run that was never stopped (the
+    demo's interrupted training resumes so)."""
+    from training.runtime.local_ddp import fit_local
+
+    kw = dict(log_every=1, val_every=1000, ckpt_every=1, optim={"lr": 1e-3, "batch_size": 2})
+    fit_local(tiny_config(tiny_cache, tmp_path / "whole", steps=4, **kw), 2, timeout_s=120)
+    fit_local(tiny_config(tiny_cache, tmp_path / "split", steps=2, **kw), 2, timeout_s=120)
+    fit_local(tiny_config(tiny_cache, tmp_path / "split", steps=4, **kw), 2, resume=True, timeout_s=120)
+    a = torch.load(tmp_path / "whole" / "latest.pt", weights_only=True)
+    b = torch.load(tmp_path / "split" / "latest.pt", weights_only=True)
+    assert a["step"] == b["step"] == 4
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k

@@ -90,5 +90,6 @@ def fit_local(cfg: TrainConfig, processes: int, resume: bool = False, validate_f
         if "error" in results[rank]:
             raise ChildFailed(f"training process {rank}: {results[rank]['error']}")
     if 0 not in results:
-        raise ChildFailed("training process 0 ended without a result (killed?)")
+        raise ChildFailed("training process 0 stopped before it could report (killed, or it could not start: its "
+                          "own error, if any, is printed above; spawned processes need the caller in a file, not stdin)")
     return results[0]["first"], results[0]["last"]
