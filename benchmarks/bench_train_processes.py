@@ -29,18 +29,12 @@ REPO = Path(__file__).resolve().parents[1]
 def _fit_seconds(cache: str, run_dir: Path, steps: int, processes: int, threads: int) -> float:
     from training.presets import demo_train_config
     from training.runtime.local_ddp import fit_local
-    from training.trainer import Trainer
 
     shutil.rmtree(run_dir, ignore_errors=True)
     cfg = demo_train_config(cache, str(run_dir), steps, overrides={
         "progress": False, "val_every": steps, "ckpt_every": steps, "log_every": steps, "threads": threads})
     t = time.perf_counter()
-    if processes > 1:
-        fit_local(cfg, processes)
-    else:
-        trainer = Trainer(cfg)
-        trainer.fit()
-        trainer.close()
+    fit_local(cfg, processes)
     return time.perf_counter() - t
 
 

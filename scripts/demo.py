@@ -55,7 +55,6 @@ class SideProcess:
         except subprocess.TimeoutExpired:
             print(f"error: {self.log}: the side process ran past {self.timeout_s:.0f} s", flush=True)
             return 1
-        self._out.flush()
         print(self.log.read_text(), end="", flush=True)
         return rc
 
@@ -96,7 +95,6 @@ def _run(args) -> int:
     from pipeline.synth.variety import shifted_test_config
     from training.presets import demo_train_config
     from training.runtime.local_ddp import fit_local
-    from training.trainer import Trainer
 
     t_start = time.perf_counter()
     out = Path(args.out)
@@ -154,15 +152,7 @@ def _run(args) -> int:
     threads = torch.get_num_threads()
     tcfg = demo_train_config(str(summary.cache_root), str(out / f"flow_run_{args.depth}"), args.steps, args.n_points,
                              args.width_scale, args.seed)
-    if args.train_processes > 1:
-        first, last = fit_local(tcfg, args.train_processes, resume=True, validate_first=True)
-    else:
-        trainer = Trainer(tcfg, resume=True)
-        try:
-            first = trainer.validate() if trainer.step == 0 else None
-            last = trainer.fit() if trainer.step < trainer.steps else trainer.validate()
-        finally:
-            trainer.close()
+    first, last = fit_local(tcfg, args.train_processes, resume=True, validate_first=True)
     torch.set_num_threads(threads)
     if first:
         print(f"validation EPE3D: untrained {first.get('val_epe3d', float('nan')):.4f} m -> "

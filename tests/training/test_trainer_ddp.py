@@ -81,16 +81,11 @@ def _assert_same_first_step(single_dir, ddp_dir) -> None:
 
 def test_local_processes_run_matches_one_process(tiny_cache, tmp_path):  # noqa: F811
     """fit_local: the same two-process run without torchrun (a file rendezvous, spawned children), its rank 0's
-    validation before the first step and last row handed back."""
+    validation before the first step and last row handed back; with one process it trains in this one."""
     from training.runtime.local_ddp import fit_local
-    from training.trainer import Trainer
 
     kw = dict(steps=1, log_every=1, val_every=1, ckpt_every=1, optim={"lr": 1e-3, "batch_size": 2})
-    single = tiny_config(tiny_cache, tmp_path / "single", **kw)
-    trainer = Trainer(single)
-    before = trainer.validate()
-    trainer.fit()
-    trainer.close()
+    before, _ = fit_local(tiny_config(tiny_cache, tmp_path / "single", **kw), 1, validate_first=True)  # in-process
     first, last = fit_local(tiny_config(tiny_cache, tmp_path / "ddp", **kw), 2, validate_first=True, timeout_s=120)
     assert first["val_epe3d"] == pytest.approx(before["val_epe3d"], rel=1e-5)
     assert last["step"] == 1 and "val_epe3d" in last

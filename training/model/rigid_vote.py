@@ -74,8 +74,9 @@ class RigidVoteConfig:
 def trimmed_rounds(a: Tensor, b: Tensor, R: Tensor, t: Tensor,
                    cfg: RigidVoteConfig) -> tuple[Tensor, Tensor, Tensor]:
     """Step 2 of the module docstring for H starting motions at once: ``a`` (H, M, 3) onto ``b`` (H, P, 3), or
-    (B, P, 3) with every cloud's hypotheses in a row (:func:`~training.model.translation_vote.nearest`), started at ``R`` (H, 3, 3), ``t`` (H, 3), metres. Returns the fitted ``(R, t)`` and (H,) the inlier count
-    of the last round (a round with fewer than ``min_inliers`` inliers is not taken)."""
+    (B, P, 3) with every cloud's hypotheses in a row (:func:`~training.model.translation_vote.nearest`), started
+    at ``R`` (H, 3, 3), ``t`` (H, 3), metres. Returns the fitted ``(R, t)`` and (H,) the inlier count of the
+    last round (a round with fewer than ``min_inliers`` inliers is not taken)."""
     fit = weighted_planar_fit if cfg.planar else weighted_rigid_fit
     count = torch.zeros(a.shape[0], dtype=a.dtype, device=a.device)
     for radius in cfg.radii_m:

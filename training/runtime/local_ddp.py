@@ -33,6 +33,15 @@ class ChildFailed(MonoflowError):
     """A training process stopped with an error (its one-line message)."""
 
 
+def _to_the_end(trainer, validate_first: bool) -> tuple[dict | None, dict]:
+    """``(first, last)`` of :func:`fit_local` from a built :class:`~training.trainer.Trainer`: the validation
+    row before the first step (``validate_first`` and at step 0), then the fit's last row, or only a
+    validation row when the run is already finished."""
+    first = trainer.validate() if validate_first and trainer.step == 0 else None
+    last = trainer.fit() if trainer.step < trainer.steps else trainer.validate()
+    return first, last
+
+
 def _child(rank: int, cfg: TrainConfig, processes: int, folder: str, resume: bool, validate_first: bool,
            timeout_s: float) -> None:
     import torch.distributed as dist
@@ -46,8 +55,7 @@ def _child(rank: int, cfg: TrainConfig, processes: int, folder: str, resume: boo
 
         trainer = Trainer(cfg, resume=resume)
         try:
-            first = trainer.validate() if validate_first and trainer.step == 0 else None
-            last = trainer.fit() if trainer.step < trainer.steps else trainer.validate()
+            first, last = _to_the_end(trainer, validate_first)
         finally:
             trainer.close()
         result: dict[str, Any] = {"first": first, "last": last}
@@ -65,15 +73,24 @@ def _child(rank: int, cfg: TrainConfig, processes: int, folder: str, resume: boo
 def fit_local(cfg: TrainConfig, processes: int, resume: bool = False, validate_first: bool = False,
               timeout_s: float = 600.0) -> tuple[dict | None, dict]:
     """Train ``cfg`` in ``processes`` data-parallel processes on this machine (one thread each, data loaded
-    in-process) and return rank 0's ``(first, last)``: the validation row before the first step (when
+    in-process; ``processes`` 1: in this process, with ``cfg``'s own threads and loader workers) and return
+    rank 0's ``(first, last)``: the validation row before the first step (when
     ``validate_first`` and the run starts at step 0; else None) and :meth:`Trainer.fit`'s last row (the
     validation row when the run was already finished). ``resume`` as :class:`~training.trainer.Trainer`'s.
     ``optim.batch_size`` must divide by ``processes``. ``timeout_s``: the most any collective waits for the
     other processes. Raises :class:`ChildFailed` with the first failing process's message."""
     import torch.multiprocessing as mp
 
-    if processes < 2:
-        raise ValueError(f"fit_local needs at least 2 processes, got {processes}")
+    if processes < 1:
+        raise ValueError(f"fit_local needs at least 1 process, got {processes}")
+    if processes == 1:
+        from training.trainer import Trainer
+
+        trainer = Trainer(cfg, resume=resume)
+        try:
+            return _to_the_end(trainer, validate_first)
+        finally:
+            trainer.close()
     cfg = replace(cfg, threads=1, data=replace(cfg.data, workers=0))
     with tempfile.TemporaryDirectory(prefix="monoflow-ddp-") as folder:
         try:
