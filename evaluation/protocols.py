@@ -31,13 +31,13 @@ over seeds and the population std over seeds. Frames: camera frame of frame 1 (p
 
 from __future__ import annotations
 
-import time
 import zlib
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from evaluation.answers import AnswerBook, ask
 from evaluation.methods import FlowMethod
 from evaluation.metrics import SUBSETS, aggregate, mean_over_runs, scene_metrics
 from evaluation.predictions import ScenePrediction
@@ -105,7 +105,9 @@ class MethodResult:
     """One method over a split.
 
     metrics: mean over scenes (mean ± std over seeds when several), as :func:`~evaluation.metrics.aggregate`.
-    seconds_per_scene: mean wall time of one call (method + spreading its flow to the scored points), s.
+    seconds_per_scene: mean wall time of one call (method + spreading its flow to the scored points), s; a
+        wrapper row's includes the seconds its inner row took on the scene (its flow is taken from that row's
+        run, :mod:`evaluation.answers`), so it is the time of running the row from scratch.
     per_scene: the first seed's scene metrics, each with its ``name``.
     per_seed: one :func:`~evaluation.metrics.aggregate` per seed, each with its ``seed``.
     """
@@ -243,10 +245,8 @@ def prepare_scene(sample: SceneFlowSample, cfg: ProtocolConfig, seed: int) -> Pr
 
 def predict(method: FlowMethod, scene: PreparedScene) -> np.ndarray:
     """The method's flow at the scored points of ``scene``, (n_scored, 3) float32 metres."""
-    if getattr(method, "needs_pose", False):
-        flow = method(scene.pc1, scene.pc2, scene.color1, scene.color2, pose=scene.pose)
-    else:
-        flow = method(scene.pc1, scene.pc2, scene.color1, scene.color2)
+    extra = {"pose": scene.pose} if getattr(method, "needs_pose", False) else {}
+    flow = ask(method, scene.pc1, scene.pc2, scene.color1, scene.color2, **extra)  # from the scene's book if open
     flow = np.asarray(flow, dtype=np.float32)
     if flow.shape != scene.pc1.shape:
         raise ValueError(f"method {method.name!r} returned flow of shape {flow.shape}, expected {scene.pc1.shape}")
@@ -289,22 +289,24 @@ def run_protocol(split: Sequence[SceneFlowSample], methods: Sequence[FlowMethod]
             scene = prepare_scene(sample, cfg, seed)
             if seed == cfg.seeds[0] and cfg.protocol in ("fps", "released", "paper") and sample.n1 < cfg.n_score:
                 few.append(f"{sample.name} ({sample.n1})")
-            if not warm:
-                for m in methods:
-                    predict(m, scene)
+            if not warm:  # every part of every row runs once (a stack's rows share their parts' answers)
+                with AnswerBook(scene.pc1, scene.pc2, scene.color1, scene.color2):
+                    for m in methods:
+                        predict(m, scene)
                 warm = True
             calls += 1
-            for m in methods:
-                t0 = time.perf_counter()
-                pred = predict(m, scene)
-                seconds[m.name] += time.perf_counter() - t0
-                row = scene_metrics(pred, scene.gt, moving=scene.moving, foreground=scene.foreground,
-                                    depth=scene.points[:, 2])
-                row["name"] = sample.name
-                scenes[m.name].append(row)
-                if on_prediction is not None and seed == cfg.seeds[0]:
-                    on_prediction(m.name, ScenePrediction(name=sample.name, points=scene.points, pred_flow=pred,
-                                                          gt_flow=scene.gt, moving=scene.moving, method=m.name))
+            # a wrapper row is given its inner row's flow on this scene, and that row's seconds (evaluation/answers.py)
+            with AnswerBook(scene.pc1, scene.pc2, scene.color1, scene.color2) as book:
+                for m in methods:
+                    pred, dt = book.timed(predict, m, scene)
+                    seconds[m.name] += dt
+                    row = scene_metrics(pred, scene.gt, moving=scene.moving, foreground=scene.foreground,
+                                        depth=scene.points[:, 2])
+                    row["name"] = sample.name
+                    scenes[m.name].append(row)
+                    if on_prediction is not None and seed == cfg.seeds[0]:
+                        on_prediction(m.name, ScenePrediction(name=sample.name, points=scene.points, pred_flow=pred,
+                                                              gt_flow=scene.gt, moving=scene.moving, method=m.name))
         if few and seed == cfg.seeds[0]:
             import sys
 

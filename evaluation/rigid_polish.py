@@ -102,6 +102,7 @@ from core.clusters import object_clusters, radius_components
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.view_prune import ViewExtent, ViewPruneConfig, rigid_fit
+from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
 
 
@@ -473,7 +474,7 @@ class RigidPolished(MethodWrapper):
     registered_ego = True  # a refinement after it holds this ego-motion (RefineConfig.after_registration)
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
-        flow = self.inner(pc1, pc2, color1, color2)
+        flow = ask(self.inner, pc1, pc2, color1, color2)
         return polish_rigid(pc1, pc2, flow, self.config)[0]
 
 

@@ -33,6 +33,9 @@ class DataConfig:
         these angles (degrees, per axis) and translations (metres, per axis) — the released code's
         augmentation; 0 disables it.
     workers: DataLoader worker processes (0 = load in the training process).
+    keep_mb: MiB of decoded pairs each loading process keeps in memory, the first ones read until full (a
+        cache that fits is read from disk once per process; most of a CPU step's loading on a small cache);
+        0 = read every pair from disk (pipeline.cache.reader.CacheReader).
     depth2_kept_only: the depth-consistency loss samples D_{t+1} only at frame-(t+1) pixels that survived
         stage one's filters (ground, sky, LiDAR range, occlusion), i.e. the surfaces pc2 holds; other pixels
         count as invalid and the points landing there are masked. False = the whole depth map (the
@@ -75,6 +78,7 @@ class DataConfig:
     jitter_deg: float = 0.0
     jitter_m: float = 0.0
     workers: int = 2
+    keep_mb: float = 512.0
     depth2_kept_only: bool = False
     lidar_rings: float = 0.0
     ring_band: float = 0.5

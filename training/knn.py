@@ -2,7 +2,7 @@
 
 One entry point, :func:`knn`, with two backends that return the same answer:
 
-- ``"kdtree"``: :class:`scipy.spatial.cKDTree` per batch element (all cores for large queries); the fast
+- ``"kdtree"``: :class:`scipy.spatial.cKDTree` per batch element (torch's threads for large queries); the fast
   choice on CPU (several times to tens of times faster than a dense distance matrix at 8192 points).
 - ``"torch"``: dense squared distances + ``topk``, chunked over the query points so that memory stays
   bounded; the choice on CUDA.
@@ -33,10 +33,19 @@ class NonFiniteError(MonoflowError):
 
 # Entries of the (B, chunk, N) distance block the torch backend materialises at once (128 MiB in fp32).
 DEFAULT_BLOCK_ELEMENTS = 1 << 25
-# Query sets with at least this many (query, neighbour) pairs use KDTREE_WORKERS threads (-1: all cores)
-# in the KD-tree backend; smaller ones use one (thread start-up would cost more than it saves).
+# Query sets with at least this many (query, neighbour) pairs use KDTREE_WORKERS threads in the KD-tree
+# backend; smaller ones use one (thread start-up would cost more than it saves). None: torch's intra-op
+# threads (``--threads``), so that a data-parallel process of one thread does not start a thread per core
+# beside its siblings; -1: every core.
 PARALLEL_MIN_NEIGHBOURS = 1 << 14
-KDTREE_WORKERS = -1
+KDTREE_WORKERS: int | None = None
+
+
+def _workers(pairs: int) -> int:
+    """KD-tree query threads for ``pairs`` (query, neighbour) pairs."""
+    if pairs < PARALLEL_MIN_NEIGHBOURS:
+        return 1
+    return torch.get_num_threads() if KDTREE_WORKERS is None else KDTREE_WORKERS
 
 
 def knn(
@@ -107,12 +116,12 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)
     if shared:  # one tree serves every batch element
-        workers = KDTREE_WORKERS if B * M * k >= PARALLEL_MIN_NEIGHBOURS else 1
+        workers = _workers(B * M * k)
         d, i = cKDTree(r[0]).query(q.reshape(B * M, -1), k=k, workers=workers)
         idx[:] = torch.from_numpy(i.reshape(B, M, k).astype("int64", copy=False))
         dist2[:] = torch.from_numpy(d.reshape(B, M, k)).square_()
         return dist2.to(query.device, query.dtype), idx.to(query.device)
-    workers = KDTREE_WORKERS if M * k >= PARALLEL_MIN_NEIGHBOURS else 1
+    workers = _workers(M * k)
     for b in range(B):
         d, i = cKDTree(r[b]).query(q[b], k=k, workers=workers)
         idx[b] = torch.from_numpy(i.reshape(M, k).astype("int64", copy=False))

@@ -55,8 +55,8 @@ from training.two_pass import forward_two_passes, level_inputs
 # Options a resumed run may change without changing the trajectory of the weights.
 RESUMABLE_CHANGES = frozenset({
     "cache", "run_dir", "steps", "epochs", "device", "threads", "amp", "deterministic", "log_every",
-    "val_every", "ckpt_every", "progress", "select_by", "data.workers", "data.val_pairs_max", "model.knn_backend",
-    "loss.knn_backend",
+    "val_every", "ckpt_every", "progress", "select_by", "data.workers", "data.keep_mb", "data.val_pairs_max",
+    "model.knn_backend", "loss.knn_backend",
 })
 
 
@@ -159,7 +159,7 @@ class Trainer:
         self.dist = distributed.init_distributed(self.device)
         checkpoints.seed_all(cfg.seed, cfg.deterministic)
         self.run_dir = Path(cfg.run_dir)
-        self.reader = CacheReader(cfg.cache)
+        self.reader = CacheReader(cfg.cache, keep_mb=cfg.data.keep_mb)
         self.train_idx, self.val_idx = self._split()
         d = cfg.data
         self.train_set = PairDataset(self.reader, self.train_idx, d.n_points, cfg.seed, d.colour_features,

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from evaluation.answers import ask
 from evaluation.optimise.common import FlowMLP, as_tensor, resolve
 from evaluation.optimise.config import RefineConfig
 from evaluation.optimise.loop import FitResult, minimise
@@ -98,7 +99,7 @@ class RefinedMethod:
         self.name = self.name or f"{self.base.name} + refinement"
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
-        init = np.asarray(self.base(pc1, pc2, color1, color2), dtype=np.float32)
+        init = np.asarray(ask(self.base, pc1, pc2, color1, color2), dtype=np.float32)
         with torch.enable_grad():
             self.last = refine_flow(pc1, pc2, init, self.config)
         return self.last.flow.cpu().numpy().astype(np.float32)

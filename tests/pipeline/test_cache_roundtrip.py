@@ -183,6 +183,31 @@ def test_reader_reopens_after_fork_and_pickles(cache):
     assert not clone._open and np.array_equal(clone[7].pc2, parent.pc2)
 
 
+def test_kept_pairs_are_read_once_equal_read_only_and_bounded(cache, monkeypatch):
+    root = cache[0]
+    plain, keeping = CacheReader(root), CacheReader(root, keep_mb=100)
+    reads = []
+    read = keeping._read
+    monkeypatch.setattr(keeping, "_read", lambda blk, k, j, i: reads.append(i) or read(blk, k, j, i))
+    for _ in range(2):
+        for i in (3, 7, 3):
+            a, b = plain[i], keeping[i]
+            for name, value in vars(a).items():
+                if isinstance(value, np.ndarray):
+                    assert np.array_equal(value, getattr(b, name)), name
+                    with pytest.raises(ValueError):  # a caller cannot change what the next one gets
+                        getattr(b, name)[...] = 0
+    assert reads == [3, 7]  # each pair decoded once
+    pair = sum(v.nbytes for v in vars(plain[3]).values() if isinstance(v, np.ndarray))
+    one = CacheReader(root, keep_mb=1.5 * pair / 2**20)  # room for one pair: the first is kept, no other
+    one[3], one[7], one[3]
+    assert set(one._kept) == {3} and one._kept_total == pair
+    assert plain[3].pc1.flags.writeable and not plain._kept  # keep_mb 0: nothing kept
+    assert one[3] is one[3]
+    clone = pickle.loads(pickle.dumps(one))  # another process starts with nothing kept
+    assert not clone._kept and clone._kept_total == 0 and clone.keep_bytes == one.keep_bytes
+
+
 def test_gt_flow_ulp_offsets_are_exact_and_zero_on_static_points():
     from pipeline.cache.encode import gt_flow_from_ulp_offsets, gt_flow_to_ulp_offsets
 

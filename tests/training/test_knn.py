@@ -134,3 +134,20 @@ def test_cuda_matches_cpu():
     d_gpu, i_gpu = knn(query.cuda(), ref.cuda(), 32)  # auto -> torch on CUDA
     assert i_gpu.device.type == "cuda"
     assert_same_neighbours(d_gpu.cpu(), i_gpu.cpu(), d_cpu, i_cpu)
+
+
+def test_kdtree_threads_follow_torch_s_threads(monkeypatch):
+    """A data-parallel process of one thread (the demo's training) queries with one thread, not one per core."""
+    import training.knn as knn_module
+
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 1
+        torch.set_num_threads(2)
+        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 2
+        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS - 1) == 1  # small queries: one thread
+        monkeypatch.setattr(knn_module, "KDTREE_WORKERS", -1)
+        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == -1  # an explicit setting wins
+    finally:
+        torch.set_num_threads(threads)

@@ -124,6 +124,24 @@ def test_interpolation_gradients_are_finite_at_coincident_points():
     assert feat.grad.abs().sum() > 0
 
 
+def test_numpy_fps_takes_the_torch_loop_s_points():
+    """The CPU path (NumPy) and the PyTorch loop pick the same indices: random clouds, both float types, other
+    dimensions, a non-contiguous view, and a lattice with every point twice (exact ties)."""
+    from training.pointops import farthest_point_sample_loop, farthest_point_sample_numpy
+
+    g = torch.Generator().manual_seed(1)
+    grid = torch.stack(torch.meshgrid(torch.arange(6.0), torch.arange(6.0), torch.arange(3.0), indexing="ij"), -1)
+    clouds = [torch.rand(4, 2048, 3, generator=g) * 60 - 30, torch.rand(2, 300, 3, generator=g).double(),
+              torch.rand(2, 200, 2, generator=g), torch.rand(3, 400, 3, generator=g)[:, ::2],
+              grid.reshape(1, -1, 3).repeat(2, 2, 1)]
+    for xyz in clouds:
+        n = min(xyz.shape[1], 512)
+        got = farthest_point_sample_numpy(xyz, n)
+        assert got.dtype == torch.int64 and got.shape == (xyz.shape[0], n)
+        assert torch.equal(got, farthest_point_sample_loop(xyz, n))
+    assert torch.equal(farthest_point_sample(clouds[0], 64), farthest_point_sample_loop(clouds[0], 64))
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_triton_fps_matches_the_loop_on_a_gpu():
     """The Triton kernel (CUDA only) takes the same points as the PyTorch loop, duplicates and ties included,
