@@ -266,3 +266,37 @@ def test_l1_norm_is_the_residual_length():
     assert torch.isfinite(pts.grad).all()
     with pytest.raises(Exception, match="norm"):
         depth_consistency(pts, K, depth, norm="l3")
+
+
+def test_a_prepared_depth_sampler_gives_the_same_terms_and_the_loss_prepares_one_per_map(monkeypatch):
+    """The trainer prepares the batch's depth map once for every level's two depth terms
+    (training.losses.total); the residuals, masks and gradients are those of preparing it in each call."""
+    import importlib
+
+    total = importlib.import_module("training.losses.total")
+    from training.losses.depth_consistency import depth_sampler
+
+    p1, flow, K, d2, _ = scene_points()
+    d2 = d2.clone()
+    d2[0, :3] = 0.0  # unknown pixels, and an edge between them and the plane
+    for tol in (0.0, 0.05):
+        got = []
+        for sampler in (None, depth_sampler(d2, torch.float64, edges=tol > 0)):
+            pts = (p1 + 0.9 * flow).requires_grad_(True)
+            res, valid = depth_consistency_residuals(pts, K, d2, edge_tolerance=tol, sampler=sampler)
+            res.sum().backward()
+            got.append((res.detach(), valid, pts.grad))
+        assert valid.any() and not valid.all()
+        for a, b in zip(*got):
+            assert torch.equal(a, b)
+    calls = []
+    prepare = depth_sampler
+    monkeypatch.setattr(total, "depth_sampler", lambda *a, **k: calls.append(1) or prepare(*a, **k))
+    n = p1.shape[1]
+    level = total.LevelInputs(pc1=p1, pc2=p1 + flow, flow_o=flow, flow_d=flow * 0.5, static_flow=flow * 0.5, K=K,
+                              depth2=d2)
+    weights = total.LossWeights(depth_edge_tolerance=0.05, use_chamfer=False, use_laplacian=False)
+    loss, terms = total.multi_level_loss([level] * 4, weights)
+    assert len(calls) == 1 and n > 0  # one map, four levels, eight depth terms
+    alone = total.level_terms(level, weights)
+    assert terms["l3/depth"] == float(alone["depth"]) and len(calls) == 2

@@ -20,6 +20,8 @@ is in m².
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -35,6 +37,26 @@ _VALID_WEIGHT = 1.0 - 1e-4
 _BORDER_TOL = 1e-3
 
 
+@dataclass(frozen=True)
+class DepthSampler:
+    """``D_{t+1}`` prepared once for every projection that samples it (eq. 8; the trainer's two depth terms at
+    every level sample the same map): ``maps`` (B, 2, H, W), the depth in metres (0 where unknown) and its
+    validity (1/0), in the points' dtype; ``spread`` (B, H−1, W−1), each 2×2 pixel window's relative depth
+    spread max/min − 1 (inf where a pixel is unknown), or None when not asked for."""
+
+    maps: Tensor
+    spread: Tensor | None
+
+
+def depth_sampler(depth2: Tensor, dtype: torch.dtype, edges: bool = False) -> DepthSampler:
+    """:class:`DepthSampler` of ``depth2`` (B, H, W) metres, ≤ 0 or non-finite where unknown; ``edges``: also
+    the windows' spread (for ``edge_tolerance``)."""
+    depth_ok = torch.isfinite(depth2) & (depth2 > 0)
+    d2 = torch.where(depth_ok, depth2, torch.zeros_like(depth2)).to(dtype)
+    maps = torch.stack([d2, depth_ok.to(dtype)], dim=1)  # (B, 2, H, W): depth and its validity
+    return DepthSampler(maps, _window_spread(d2) if edges else None)
+
+
 def depth_consistency_residuals(
     points_warped: Tensor,
     K: Tensor,
@@ -43,6 +65,7 @@ def depth_consistency_residuals(
     source_points: Tensor | None = None,
     eps: float = 1e-3,
     edge_tolerance: float = 0.0,
+    sampler: DepthSampler | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Per-point squared residuals ``‖p̄ − p̂‖²`` (B, N) in m² and the mask (B, N) of points that count.
 
@@ -59,6 +82,8 @@ def depth_consistency_residuals(
             draws on differ by more than this fraction (max/min − 1): there the interpolated depth lies
             on no surface (it mixes a foreground edge with the background behind it), and a squared
             residual of tens of metres would dominate the mean. 0 = the paper's plain bilinear sample.
+        sampler: ``depth2`` already prepared (:func:`depth_sampler`, in the points' dtype, with the spread when
+            ``edge_tolerance`` > 0); the same result, without preparing the map again.
 
     Masks (both variants): ``z̄ ≤ eps``; an interpolated depth that draws weight from an invalid pixel.
     ``"paper"`` also masks points projecting outside the image (pixel centres span [0, W−1] × [0, H−1],
@@ -99,16 +124,15 @@ def depth_consistency_residuals(
     centre = uv.new_tensor([(W - 1) / 2.0, (H - 1) / 2.0]).expand_as(uv)
     uv_sample = torch.where(valid.unsqueeze(-1), uv_sample, centre)
 
-    depth_ok = torch.isfinite(depth2) & (depth2 > 0)
-    d2 = torch.where(depth_ok, depth2, torch.zeros_like(depth2)).to(dtype)
+    if sampler is None or sampler.maps.dtype != dtype or (edge_tolerance > 0 and sampler.spread is None):
+        sampler = depth_sampler(depth2, dtype, edges=edge_tolerance > 0)
     grid = torch.stack([2.0 * uv_sample[..., 0] / (W - 1) - 1.0, 2.0 * uv_sample[..., 1] / (H - 1) - 1.0], -1)
     grid = grid.unsqueeze(1)  # (B, 1, N, 2)
-    maps = torch.stack([d2, depth_ok.to(dtype)], dim=1)  # (B, 2, H, W): depth and its validity
-    sampled = F.grid_sample(maps, grid, mode="bilinear", padding_mode="zeros", align_corners=True)[:, :, 0]
+    sampled = F.grid_sample(sampler.maps, grid, mode="bilinear", padding_mode="zeros", align_corners=True)[:, :, 0]
     d_hat, weight_ok = sampled[:, 0], sampled[:, 1]  # (B, N) each
     valid = valid & (weight_ok.detach() >= _VALID_WEIGHT)
     if edge_tolerance > 0:
-        valid = valid & ~_straddles_edge(d2, uv_sample.detach(), edge_tolerance)
+        valid = valid & ~_straddles_edge(sampler.spread, uv_sample.detach(), edge_tolerance)
 
     if variant == "paper":
         p_hat = backproject(d_hat, K, uv=torch.where(valid.unsqueeze(-1), uv, centre))  # at (u', v') itself
@@ -120,14 +144,21 @@ def depth_consistency_residuals(
     return torch.where(valid, res2, torch.zeros_like(res2)), valid
 
 
-def _straddles_edge(depth: Tensor, uv: Tensor, tolerance: float) -> Tensor:
-    """(B, N) True where the 2×2 depth pixels around ``uv`` (B, N, 2) span more than ``tolerance`` (relative)."""
-    B, H, W = depth.shape
+def _window_spread(depth: Tensor) -> Tensor:
+    """(B, H−1, W−1): each 2×2 window (top-left anchored) of ``depth`` (B, H, W)'s max/min − 1, inf where its
+    least pixel is not positive."""
     with torch.no_grad():
         win = depth.unsqueeze(1)
-        hi = F.max_pool2d(win, 2, stride=1)[:, 0]  # (B, H-1, W-1): max of each 2×2 window (top-left anchored)
+        hi = F.max_pool2d(win, 2, stride=1)[:, 0]
         lo = -F.max_pool2d(-win, 2, stride=1)[:, 0]
-        spread = torch.where(lo > 0, hi / lo.clamp(min=1e-6) - 1.0, torch.full_like(hi, float("inf")))
+        return torch.where(lo > 0, hi / lo.clamp(min=1e-6) - 1.0, torch.full_like(hi, float("inf")))
+
+
+def _straddles_edge(spread: Tensor, uv: Tensor, tolerance: float) -> Tensor:
+    """(B, N) True where the 2×2 depth pixels around ``uv`` (B, N, 2) span more than ``tolerance`` (relative);
+    ``spread`` (B, H−1, W−1) from :func:`_window_spread`."""
+    B, H, W = spread.shape[0], spread.shape[1] + 1, spread.shape[2] + 1
+    with torch.no_grad():
         u0 = uv[..., 0].floor().clamp(0, W - 2).long()
         v0 = uv[..., 1].floor().clamp(0, H - 2).long()
         flat = spread.reshape(B, -1).gather(1, v0 * (W - 1) + u0)
@@ -143,6 +174,7 @@ def depth_consistency(
     eps: float = 1e-3,
     edge_tolerance: float = 0.0,
     norm: str = "l2",
+    sampler: DepthSampler | None = None,
 ) -> Tensor:
     """Depth consistency loss (eq. 10), one of ``L_Depth1`` / ``L_Depth2``:
 
@@ -174,8 +206,10 @@ def depth_consistency(
     (``LossWeights.depth_norm``) is ``"l1"``. Not reproduced here (they belong to the trainer's ablations, not
     to this function): the released code's use of the depth terms at the finest level only, and its
     ``L_Depth2`` comparing the re-projected point with ``p1 + f_o`` rather than with ``p1 + sf_s + f_d``.
+    ``sampler``: ``depth2`` already prepared (:func:`depth_sampler`), as in :func:`depth_consistency_residuals`.
     """
-    res2, valid = depth_consistency_residuals(points_warped, K, depth2, variant, source_points, eps, edge_tolerance)
+    res2, valid = depth_consistency_residuals(points_warped, K, depth2, variant, source_points, eps, edge_tolerance,
+                                              sampler)
     if norm == "l1":  # robust: the residual's length (smoothed at 1 mm so the gradient stays finite at 0)
         res2 = torch.where(valid, smooth_length(res2), torch.zeros_like(res2))
     elif norm != "l2":

@@ -25,7 +25,7 @@ from torch import Tensor
 from core.errors import ConfigError, InputError
 from training.losses._common import check_points
 from training.losses.chamfer import chamfer
-from training.losses.depth_consistency import depth_consistency
+from training.losses.depth_consistency import DepthSampler, depth_consistency, depth_sampler
 from training.losses.dynamic_static import dynamic_static
 from training.losses.ego_motion import ego_motion_term
 from training.losses.flow_smooth import flow_smoothness
@@ -77,18 +77,26 @@ def level_alphas(weights: LossWeights, n_levels: int) -> tuple[float, ...]:
     return tuple(reversed(weights.alpha)) if weights.alpha_order == "released" else weights.alpha
 
 
-def level_terms(level: LevelInputs, weights: LossWeights) -> dict[str, Tensor]:
+def level_terms(level: LevelInputs, weights: LossWeights,
+                samplers: dict[tuple[int, torch.dtype], tuple[Tensor, DepthSampler]] | None = None
+                ) -> dict[str, Tensor]:
     """The enabled unweighted terms of one level: ``depth1``, ``depth2``, ``depth``, ``ds``, ``chamfer``,
     ``laplacian``, ``anchor``, ``ego``, ``pull``, ``smooth`` (scalars; m², the depth terms in metres with
-    ``depth_norm="l1"``, the anchor, the ego-motion and the smoothness term in metres)."""
+    ``depth_norm="l1"``, the anchor, the ego-motion and the smoothness term in metres). ``samplers``: the depth
+    maps already prepared for sampling, by (id of ``depth2``, dtype) with the map itself, shared by the levels of
+    one loss (every level's two depth terms sample the batch's one map); filled here."""
     _check_level(level)
     w = weights
     warped = level.pc1 + level.flow_o
     out: dict[str, Tensor] = {}
     if w.use_depth:
         warped_ds = level.pc1 + level.static_flow + level.flow_d
+        samplers = {} if samplers is None else samplers
+        key = (id(level.depth2), warped.dtype)
+        if key not in samplers or samplers[key][0] is not level.depth2:
+            samplers[key] = (level.depth2, depth_sampler(level.depth2, warped.dtype, edges=w.depth_edge_tolerance > 0))
         kw = dict(variant=w.depth_variant, source_points=level.pc1, eps=w.eps, edge_tolerance=w.depth_edge_tolerance,
-                  norm=w.depth_norm)
+                  norm=w.depth_norm, sampler=samplers[key][1])
         out["depth1"] = depth_consistency(warped, level.K, level.depth2, **kw)
         out["depth2"] = depth_consistency(warped_ds, level.K, level.depth2, **kw)
         out["depth"] = out["depth1"] + out["depth2"]
@@ -143,8 +151,9 @@ def multi_level_loss(levels: list[LevelInputs], weights: LossWeights) -> tuple[T
     total: Tensor | None = None
     logged: dict[str, Tensor] = {}
     coarse = weights.coarse()  # the departure terms kept to the finest level are not computed below it
+    samplers: dict = {}  # the batch's depth map prepared once for every level (they hold the same tensor)
     for k, (level, alpha) in enumerate(zip(levels, alphas)):
-        terms = level_terms(level, weights if k == 0 else coarse)
+        terms = level_terms(level, weights if k == 0 else coarse, samplers)
         weighted = sum((beta[name] * terms[name] for name in beta if name in terms), level.flow_o.new_zeros(()))
         if "anchor" in terms:
             weighted = weighted + weights.static_anchor * terms["anchor"]
