@@ -109,8 +109,10 @@ def _run(args) -> int:
         world, synth = out / "world_aa", SynthConfig(seed=args.seed, supersample=2, width=128, height=64)
     else:
         # six training sequences, each with its own camera, driving and traffic (SynthConfig.variety); the
-        # test sequence keeps the default config
-        world, synth = out / "world_varied", SynthConfig(seed=args.seed, variety=1.0, n_sequences=6)
+        # test sequence keeps the default config. Stage one reads the training sequences' cameras alone (depth
+        # and poses from the world), so only the test sequence is scanned (its scans make the scene-flow split)
+        world = out / "world_varied"
+        synth = SynthConfig(seed=args.seed, variety=1.0, n_sequences=6, lidar_scans="test")
 
     _say(f"1/5 synthetic world ({synth.width}x{synth.height}, seed {synth.seed}, variety {synth.variety}) -> {world}")
     print("\n".join(generate(synth, world, workers=2).lines()), flush=True)

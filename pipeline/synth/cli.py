@@ -34,6 +34,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="LiDAR azimuth step of the training sequences, degrees (default %(default)s)")
     p.add_argument("--test-lidar-az-step", type=float, default=d.test_lidar_azimuth_step_deg,
                    help="LiDAR azimuth step of the test sequence, degrees (default %(default)s)")
+    p.add_argument("--lidar-scans", choices=("all", "test"), default=d.lidar_scans,
+                   help="sequences with Velodyne scans: all (KITTI's layout) or the test sequence alone (its scans make "
+                        "the scene-flow split; nearly half a frame's rendering saved for runs that read only the "
+                        "training cameras) (default %(default)s)")
     p.add_argument("--supersample", type=int, default=d.supersample, help="colour samples per pixel side")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes rendering frames; the output does not depend on it (default %(default)s)")
@@ -53,7 +57,7 @@ def _body(argv: list[str] | None) -> int:
         frames=a.frames, test_frames=a.test_frames, parked_cars=a.parked, moving_cars=a.movers,
         mover_speed_min=a.mover_speed[0], mover_speed_max=a.mover_speed[1],
         lidar_azimuth_step_deg=a.lidar_az_step, test_lidar_azimuth_step_deg=a.test_lidar_az_step,
-        supersample=a.supersample,
+        supersample=a.supersample, lidar_scans=a.lidar_scans,
     )
     summary = generate(cfg, a.out, force=a.force, workers=max(1, a.workers))
     print("\n".join(summary.lines()))

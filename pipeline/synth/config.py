@@ -54,6 +54,10 @@ class SynthConfig:
     supersample: int = 1  # colour samples per pixel side (anti-aliasing); depth and flow use pixel centres
     variety: float = 0.0  # 0..1: each training sequence draws its own camera, driving and traffic (synth.variety)
     ego_stop: bool = False  # the ego car brakes to a near stop mid-sequence and pulls away again
+    # which sequences get Velodyne scans: "all" (KITTI's odometry layout) or "test" (the test sequence alone,
+    # whose scans make the scene-flow split: a world for runs that read only the cameras of the training
+    # sequences, such as stage one from ground-truth depth; the scans are nearly half of a frame's rendering)
+    lidar_scans: str = "all"
 
     def validate(self) -> "SynthConfig":
         """Raise :class:`ConfigError` for options that make no sense; return self."""
@@ -81,6 +85,8 @@ class SynthConfig:
             raise ConfigError("camera_range must lie in (0, 256) m (16-bit depth PNG)")
         if not 0.0 <= self.variety <= 1.0:
             raise ConfigError(f"variety must lie in [0, 1], got {self.variety}")
+        if self.lidar_scans not in ("all", "test"):
+            raise ConfigError(f"lidar_scans must be 'all' or 'test', got {self.lidar_scans!r}")
         if self.supersample < 1 or self.focal_scale <= 0 or self.fps <= 0 or self.min_turn_radius < 50:
             raise ConfigError("need supersample >= 1, focal_scale > 0, fps > 0, min_turn_radius >= 50")
         return self

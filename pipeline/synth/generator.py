@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import InputError
+from core.errors import ConfigError, InputError
 from pipeline.synth.config import SYNTH_VERSION, SynthConfig
 from pipeline.synth.rig import make_rig
 from pipeline.synth.sceneflow_export import write_pair, write_readme
@@ -70,6 +70,17 @@ class GenerateSummary:
 
 def _identity(cfg: SynthConfig) -> dict:
     return {"generator": "monoflow-synth", "version": SYNTH_VERSION, "config": cfg.to_dict()}
+
+
+def _same_world(meta: dict, ident: dict) -> bool:
+    """Whether the world described by ``meta`` (its ``synth.json``) is the one ``ident`` would write. Its config
+    is read through :class:`SynthConfig`, so a world written before an option existed counts with that option's
+    default (what it was made with)."""
+    try:
+        config = SynthConfig.from_dict(meta.get("config") or {}).to_dict()
+    except (ConfigError, TypeError):
+        return False
+    return {**{k: meta.get(k) for k in ident}, "config": config} == ident
 
 
 def _existing(root: Path) -> dict | None:
@@ -113,7 +124,7 @@ def generate(config: SynthConfig, root: str | os.PathLike, *, force: bool = Fals
     ident = _identity(cfg)
     if root.exists():
         old = _existing(root)
-        if old is not None and {k: old.get(k) for k in ident} == ident:
+        if old is not None and _same_world(old, ident):
             return _summary_from_json(root, old, reused=True)
         if not force and not (root.is_dir() and not any(root.iterdir())):
             what = "a different synthetic world" if old is not None else "something that is not a synthetic world"
@@ -136,7 +147,7 @@ def generate(config: SynthConfig, root: str | os.PathLike, *, force: bool = Fals
                 os.rename(tmp, root)
             except OSError:
                 other = _existing(root)  # another run finished the same folder first
-                if other is None or {k: other.get(k) for k in ident} != ident:
+                if other is None or not _same_world(other, ident):
                     raise InputError(root, "was created by another run meanwhile, with a different world") from None
                 shutil.rmtree(tmp, ignore_errors=True)
                 return _summary_from_json(root, other, reused=True)
@@ -214,7 +225,8 @@ def _summary_from_json(root: Path, meta: dict, reused: bool) -> GenerateSummary:
         frames=frames,
         flow_pairs=sum(s["frames"] - 1 for s in seqs.values()),
         test_pairs=int(meta.get("sceneflow_pairs", 0)),
-        points_per_scan=float(np.mean([s["points_per_scan"] for s in seqs.values()])) if seqs else 0.0,
+        points_per_scan=float(np.mean(scanned)) if (scanned := [s["points_per_scan"] for s in seqs.values()
+                                                                 if s["points_per_scan"] > 0]) else 0.0,
         moving_cars=sum(s["moving_cars"] for s in seqs.values()),
         reused=reused,
     )

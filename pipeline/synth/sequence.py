@@ -86,6 +86,8 @@ def generate_frame(job: SequenceJob, k: int) -> FrameResult:
             valid=valid.reshape(H, W),
             visible_next=vis.reshape(H, W),
         )
+    if not job.want_scan_gt and cfg.lidar_scans != "all":  # a training sequence without scans (lidar_scans)
+        return FrameResult(k=k, scan_points=0, scan_gt=None)
     step = cfg.test_lidar_azimuth_step_deg if job.want_scan_gt else cfg.lidar_azimuth_step_deg
     sc = lidar.scan(w, k, job.velo_pose(k), cfg, step)
     write_velodyne_bin(job.seq_dir / "velodyne" / f"{name}.bin", sc.points)

@@ -100,3 +100,24 @@ def test_stale_temporary_of_a_dead_run_is_removed(tmp_path):
     (stale / "sequences").mkdir(parents=True)
     generate(TINY, tmp_path / "w")
     assert not stale.exists() and (tmp_path / "w" / "synth.json").is_file()
+
+
+def test_a_world_scanned_on_its_test_sequence_alone_differs_only_by_the_training_scans(tmp_path):
+    """``lidar_scans="test"`` (the demo's world): every other file byte-identical to the full world's, no Velodyne
+    scan of a training sequence, the scene-flow split the same; a world written before the option existed is
+    the default's and is kept, not refused."""
+    from dataclasses import replace
+
+    full = _files(generate(TINY, tmp_path / "full").root)
+    s = generate(replace(TINY, lidar_scans="test"), tmp_path / "test")
+    part = _files(s.root)
+    scans = {k for k in full if k.startswith("sequences/00/velodyne/")}
+    assert scans and set(full) - set(part) == scans and set(part) <= set(full)
+    assert [k for k in part if k != "synth.json" and part[k] != full[k]] == []
+    assert s.sequences["00"]["points_per_scan"] == 0 and s.points_per_scan == s.sequences["01"]["points_per_scan"] > 0
+    with pytest.raises(Exception, match="lidar_scans"):
+        SynthConfig(lidar_scans="train").validate()
+    meta = json.loads((tmp_path / "full/synth.json").read_text())
+    del meta["config"]["lidar_scans"]  # as written before the option existed
+    (tmp_path / "full/synth.json").write_text(json.dumps(meta))
+    assert generate(TINY, tmp_path / "full").reused
