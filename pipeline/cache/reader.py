@@ -180,11 +180,15 @@ class CacheReader:
         state["_kept"], state["_kept_total"] = {}, 0
         return state
 
-    def _block(self, k: int) -> _OpenBlock:
-        if self._pid != os.getpid():  # first use in this process (e.g. a freshly forked worker)
+    def _own_process(self) -> None:
+        """Drop the handles and kept pairs of another process (first use here, e.g. a freshly forked worker)."""
+        if self._pid != os.getpid():
             self._open = OrderedDict()
             self._kept, self._kept_total = {}, 0
             self._pid = os.getpid()
+
+    def _block(self, k: int) -> _OpenBlock:
+        self._own_process()
         blk = self._open.get(k)
         if blk is None:
             path = self._paths[k]
@@ -209,10 +213,11 @@ class CacheReader:
             raise IndexError(f"pair {i} out of range for a cache of {self._n} pairs")
         k = int(self._block_of[i])
         j = int(self._local_of[i])
-        blk = self._block(k)  # first, so that a forked process starts with its own (empty) kept pairs
+        self._own_process()  # a forked process starts with its own (empty) kept pairs
         kept = self._kept.get(i)
         if kept is not None:
             return kept
+        blk = self._block(k)  # opened only for a pair that is read
         try:
             sample = self._read(blk, k, j, i)
         except InputError:
