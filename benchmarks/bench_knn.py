@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"torch {torch.__version__}, scipy {scipy.__version__}, {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} CPUs, torch threads {torch.get_num_threads()}, KD-tree workers "
-        f"{training.knn._workers(training.knn.PARALLEL_MIN_NEIGHBOURS)}, load average {os.getloadavg()[0]:.2f}"
+        f"{training.knn.kdtree_workers(training.knn.PARALLEL_MIN_NEIGHBOURS)}, load average {os.getloadavg()[0]:.2f}"
     )
     bench_knn(args.repeats, args.batch)
     bench_fps(args.repeats)

@@ -26,12 +26,18 @@ import time
 from pathlib import Path
 
 
-_START = time.perf_counter()
+class PhaseClock:
+    """Prints a phase's header with the seconds since the clock was made (where the demo's time goes, on any
+    machine)."""
 
+    def __init__(self) -> None:
+        self.start = time.perf_counter()
 
-def _say(text: str) -> None:
-    """A phase's header, with the seconds since the demo started (where its time goes, on any machine)."""
-    print(f"\n=== {text}  [{time.perf_counter() - _START:.0f} s]", flush=True)
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.start
+
+    def say(self, text: str) -> None:
+        print(f"\n=== {text}  [{self.elapsed():.0f} s]", flush=True)
 
 
 class SideProcess:
@@ -100,8 +106,7 @@ def _run(args) -> int:
     from training.presets import demo_train_config
     from training.runtime.local_ddp import fit_local
 
-    global _START
-    _START = t_start = time.perf_counter()
+    clock = PhaseClock()
     out = Path(args.out)
     if args.depth == "learned":
         # photometric self-supervision needs an anti-aliased world (aliased textures flicker between frames)
@@ -114,7 +119,7 @@ def _run(args) -> int:
         world = out / "world_varied"
         synth = SynthConfig(seed=args.seed, variety=1.0, n_sequences=6, lidar_scans="test")
 
-    _say(f"1/5 synthetic world ({synth.width}x{synth.height}, seed {synth.seed}, variety {synth.variety}) -> {world}")
+    clock.say(f"1/5 synthetic world ({synth.width}x{synth.height}, seed {synth.seed}, variety {synth.variety}) -> {world}")
     print("\n".join(generate(synth, world, workers=2).lines()), flush=True)
     shifted = shifted_test_config(seed=1000 + args.seed)
     shifted_root = out / "world_shifted"
@@ -127,7 +132,7 @@ def _run(args) -> int:
     if args.depth == "learned":
         from training.depth import demo_config, train_depth
 
-        _say("1b/5 self-supervised depth and pose nets on the world (SC-SfMLearner losses)")
+        clock.say("1b/5 self-supervised depth and pose nets on the world (SC-SfMLearner losses)")
         ckpts = train_depth(demo_config(str(world), str(out / "depth_run"), steps=args.depth_steps), resume=True)
         for when in ("initial", "final"):
             m = ckpts.metrics.get(when) or {}
@@ -147,12 +152,12 @@ def _run(args) -> int:
     # training clouds keep the points that leave the view by frame t+1, as LiDAR test clouds do: without
     # them longer training made the net worse on LiDAR splits (docs/learned-flow.md, third round)
     pcfg.filters.occlusion = False
-    _say(f"2/5 stage one on training sequences {', '.join(train_seqs)}: depth from {pcfg.depth}, "
+    clock.say(f"2/5 stage one on training sequences {', '.join(train_seqs)}: depth from {pcfg.depth}, "
          f"pose from {pcfg.pose}, scale {pcfg.scale.mode}")
     summary = run_preprocess(pcfg)
     print(summary.text(), flush=True)
 
-    _say(f"3/5 scene-flow training: {args.steps} steps, {args.n_points} points, width x{args.width_scale}, CPU, "
+    clock.say(f"3/5 scene-flow training: {args.steps} steps, {args.n_points} points, width x{args.width_scale}, CPU, "
          "ego-motion head and term, L0 cost volume, layer norm, LiDAR-like and camera-speed augmentation, translation vote, "
          "straight-through gate with its pull, zero flow heads, Chamfer truncated at 2 m, "
          "point-to-plane Chamfer and Laplacian, flow smoothness; at inference anchored to the rigid vote")
@@ -180,7 +185,7 @@ def _run(args) -> int:
     shifted = [sys.executable, "-m", "evaluation", "run", "--split", str(shifted_root / "sceneflow" / "flownet3d"),
                *methods, "--out", str(out / f"eval_{args.depth}_shifted")]
     with SideProcess(shifted, out / f"eval_{args.depth}_shifted.log") as second:
-        _say("4/5 evaluation on the world's scene-flow test split (same points for every method)")
+        clock.say("4/5 evaluation on the world's scene-flow test split (same points for every method)")
         # the net alone, the net run twice without the points leaving the view, that with its ego-motion polished
         # by robust ICP, that + label-free test-time refinement, and every label-free baseline on the same points
         torch.set_num_threads(1)  # the second split's process has the other core
@@ -188,9 +193,9 @@ def _run(args) -> int:
                        "--out", str(out / f"eval_{args.depth}"), "--save-predictions"])
         torch.set_num_threads(threads)
         if rc == 0:
-            _say("5/5 evaluation on the differently configured world's split (never trained on)")
+            clock.say("5/5 evaluation on the differently configured world's split (never trained on)")
             rc = second.finish()
-    print(f"demo finished in {time.perf_counter() - t_start:.0f} s", flush=True)
+    print(f"demo finished in {clock.elapsed():.0f} s", flush=True)
     return rc
 
 

@@ -41,8 +41,9 @@ PARALLEL_MIN_NEIGHBOURS = 1 << 14
 KDTREE_WORKERS: int | None = None
 
 
-def _workers(pairs: int) -> int:
-    """KD-tree query threads for ``pairs`` (query, neighbour) pairs."""
+def kdtree_workers(pairs: int) -> int:
+    """KD-tree query threads for ``pairs`` (query, neighbour) pairs (what the KD-tree backend uses; public so
+    that benchmarks can print it)."""
     if pairs < PARALLEL_MIN_NEIGHBOURS:
         return 1
     return torch.get_num_threads() if KDTREE_WORKERS is None else KDTREE_WORKERS
@@ -116,12 +117,12 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)
     if shared:  # one tree serves every batch element
-        workers = _workers(B * M * k)
+        workers = kdtree_workers(B * M * k)
         d, i = cKDTree(r[0]).query(q.reshape(B * M, -1), k=k, workers=workers)
         idx[:] = torch.from_numpy(i.reshape(B, M, k).astype("int64", copy=False))
         dist2[:] = torch.from_numpy(d.reshape(B, M, k)).square_()
         return dist2.to(query.device, query.dtype), idx.to(query.device)
-    workers = _workers(M * k)
+    workers = kdtree_workers(M * k)
     for b in range(B):
         d, i = cKDTree(r[b]).query(q[b], k=k, workers=workers)
         idx[b] = torch.from_numpy(i.reshape(M, k).astype("int64", copy=False))

@@ -143,11 +143,11 @@ def test_kdtree_threads_follow_torch_s_threads(monkeypatch):
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 1
+        assert knn_module.kdtree_workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 1
         torch.set_num_threads(2)
-        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 2
-        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS - 1) == 1  # small queries: one thread
+        assert knn_module.kdtree_workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == 2
+        assert knn_module.kdtree_workers(knn_module.PARALLEL_MIN_NEIGHBOURS - 1) == 1  # small queries: one thread
         monkeypatch.setattr(knn_module, "KDTREE_WORKERS", -1)
-        assert knn_module._workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == -1  # an explicit setting wins
+        assert knn_module.kdtree_workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == -1  # an explicit setting wins
     finally:
         torch.set_num_threads(threads)
