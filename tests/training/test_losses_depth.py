@@ -300,3 +300,29 @@ def test_a_prepared_depth_sampler_gives_the_same_terms_and_the_loss_prepares_one
     assert len(calls) == 1 and n > 0  # one map, four levels, eight depth terms
     alone = total.level_terms(level, weights)
     assert terms["l3/depth"] == float(alone["depth"]) and len(calls) == 2
+
+
+def test_the_static_anchor_s_check_samples_the_loss_s_prepared_depth_map(monkeypatch):
+    """With ``loss.static_anchor`` on, the anchor's verification shares the depth terms' prepared map (one
+    preparation for all levels) and verifies the same points as preparing its own."""
+    import importlib
+
+    total = importlib.import_module("training.losses.total")
+    from training.losses.depth_consistency import depth_sampler
+    from training.losses.static_anchor import static_anchor, verified_static
+
+    p1, flow, K, d2, _ = scene_points()
+    d2 = d2.clone()
+    d2[0, :3] = 0.0
+    own = verified_static(p1, flow, K, d2, edge_tolerance=0.05)
+    shared = verified_static(p1, flow, K, d2, edge_tolerance=0.05, sampler=depth_sampler(d2, p1.dtype, edges=True))
+    assert own.any() and not own.all() and torch.equal(own, shared)
+    calls = []
+    prepare = depth_sampler
+    monkeypatch.setattr(total, "depth_sampler", lambda *a, **k: calls.append(1) or prepare(*a, **k))
+    level = total.LevelInputs(pc1=p1, pc2=p1 + flow, flow_o=0.8 * flow, flow_d=flow * 0.5, static_flow=flow, K=K,
+                              depth2=d2)
+    weights = total.LossWeights(depth_edge_tolerance=0.05, use_chamfer=False, use_laplacian=False, static_anchor=1.0)
+    _, terms = total.multi_level_loss([level] * 4, weights)
+    assert len(calls) == 1  # one map: four levels' depth terms and anchor checks
+    assert terms["l0/anchor"] == float(static_anchor(0.8 * flow, flow, own))

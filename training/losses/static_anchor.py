@@ -27,17 +27,19 @@ import torch
 from torch import Tensor
 
 from training.losses._common import check_points, masked_mean, smooth_length
-from training.losses.depth_consistency import depth_consistency_residuals
+from training.losses.depth_consistency import DepthSampler, depth_consistency_residuals
 
 
 def verified_static(pc1: Tensor, static_flow: Tensor, K: Tensor, depth2: Tensor, tol_m: float = 0.1,
-                    tol_rel: float = 0.02, edge_tolerance: float = 0.05) -> Tensor:
+                    tol_rel: float = 0.02, edge_tolerance: float = 0.05,
+                    sampler: DepthSampler | None = None) -> Tensor:
     """(B, N) bool: the frame-t points ``pc1`` (camera 1) whose static target ``pc1 + static_flow`` (camera 2,
     metres) lies within ``max(tol_m, tol_rel · depth)`` of the depth ``depth2`` (B, H, W) sees there (along
-    the ray), inside the image and off depth edges. No gradient."""
+    the ray), inside the image and off depth edges. ``sampler``: ``depth2`` already prepared (the loss's, shared
+    with the depth terms); the same result. No gradient."""
     with torch.no_grad():
         target = (pc1 + static_flow).detach()
-        res2, valid = depth_consistency_residuals(target, K, depth2, edge_tolerance=edge_tolerance)
+        res2, valid = depth_consistency_residuals(target, K, depth2, edge_tolerance=edge_tolerance, sampler=sampler)
         tol = torch.clamp(tol_rel * target[..., 2].abs(), min=tol_m)
         return valid & (res2 <= tol * tol)
 

@@ -89,14 +89,18 @@ def level_terms(level: LevelInputs, weights: LossWeights,
     w = weights
     warped = level.pc1 + level.flow_o
     out: dict[str, Tensor] = {}
-    if w.use_depth:
-        warped_ds = level.pc1 + level.static_flow + level.flow_d
-        samplers = {} if samplers is None else samplers
+    samplers = {} if samplers is None else samplers
+
+    def sampler() -> DepthSampler:  # the level's depth map, prepared once for every term that samples it
         key = (id(level.depth2), warped.dtype)
         if key not in samplers or samplers[key][0] is not level.depth2:
             samplers[key] = (level.depth2, depth_sampler(level.depth2, warped.dtype, edges=w.depth_edge_tolerance > 0))
+        return samplers[key][1]
+
+    if w.use_depth:
+        warped_ds = level.pc1 + level.static_flow + level.flow_d
         kw = dict(variant=w.depth_variant, source_points=level.pc1, eps=w.eps, edge_tolerance=w.depth_edge_tolerance,
-                  norm=w.depth_norm, sampler=samplers[key][1])
+                  norm=w.depth_norm, sampler=sampler())
         out["depth1"] = depth_consistency(warped, level.K, level.depth2, **kw)
         out["depth2"] = depth_consistency(warped_ds, level.K, level.depth2, **kw)
         out["depth"] = out["depth1"] + out["depth2"]
@@ -120,7 +124,7 @@ def level_terms(level: LevelInputs, weights: LossWeights,
                                      w.laplacian_plane, normals2, nbr1, held)
     if w.static_anchor > 0:
         verified = verified_static(level.pc1, level.static_flow, level.K, level.depth2, w.anchor_tol_m,
-                                   w.anchor_tol_rel, w.depth_edge_tolerance)
+                                   w.anchor_tol_rel, w.depth_edge_tolerance, sampler())
         out["anchor"] = static_anchor(level.flow_o, level.static_flow, verified)
     if w.ego_motion > 0:
         if level.rigid_o is None:
