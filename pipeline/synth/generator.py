@@ -63,8 +63,11 @@ class GenerateSummary:
         for name, s in self.sequences.items():
             out.append(f"  sequence {name} ({s['split']}): {s['frames']} frames, {s['moving_cars']} moving cars, "
                        f"{s['parked_cars']} parked, road curvature {s['curvature']:+.5f} /m")
+        scanned = [n for n, s in self.sequences.items() if s.get("points_per_scan", 0) > 0]
+        lidar = (f"{self.points_per_scan:.0f} LiDAR points per scan (sequences {', '.join(scanned)})" if scanned
+                 else "no LiDAR scans")
         out.append(f"  {self.frames} frames, {self.flow_pairs} flow pairs, {self.test_pairs} scene-flow test pairs, "
-                   f"{self.points_per_scan:.0f} LiDAR points per scan, {self.moving_cars} moving cars")
+                   f"{lidar}, {self.moving_cars} moving cars")
         return out
 
 

@@ -115,6 +115,7 @@ def test_a_world_scanned_on_its_test_sequence_alone_differs_only_by_the_training
     assert scans and set(full) - set(part) == scans and set(part) <= set(full)
     assert [k for k in part if k != "synth.json" and part[k] != full[k]] == []
     assert s.sequences["00"]["points_per_scan"] == 0 and s.points_per_scan == s.sequences["01"]["points_per_scan"] > 0
+    assert "LiDAR points per scan (sequences 01)," in s.lines()[-1]  # the mean is the scanned sequences' alone
     with pytest.raises(Exception, match="lidar_scans"):
         SynthConfig(lidar_scans="train").validate()
     meta = json.loads((tmp_path / "full/synth.json").read_text())
