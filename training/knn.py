@@ -41,6 +41,13 @@ PARALLEL_MIN_NEIGHBOURS = 1 << 14
 KDTREE_WORKERS: int | None = None
 
 
+def require_finite(where: str, *arrays: np.ndarray, detail: str = "") -> None:
+    """Raise :class:`NonFiniteError` (``"<where>: non-finite point coordinates (NaN or inf)<detail>"``) unless every
+    coordinate of ``arrays`` is finite: scipy's KD-tree would fail on them with a traceback."""
+    if not all(np.isfinite(a).all() for a in arrays):
+        raise NonFiniteError(f"{where}: non-finite point coordinates (NaN or inf){detail}")
+
+
 def kdtree_workers(pairs: int) -> int:
     """KD-tree query threads for ``pairs`` (query, neighbour) pairs (what the KD-tree backend uses; public so
     that benchmarks can print it)."""
@@ -110,9 +117,8 @@ def _knn_kdtree(query: Tensor, ref: Tensor, k: int) -> tuple[Tensor, Tensor]:
     shared = ref.shape[0] > 1 and ref.stride(0) == 0  # one cloud for every batch element (an expanded view)
     q = query.detach().to("cpu", torch.float64).numpy()
     r = (ref[:1] if shared else ref).detach().to("cpu", torch.float64).numpy()
-    if not (np.isfinite(q).all() and np.isfinite(r).all()):
-        raise NonFiniteError("knn: non-finite point coordinates (NaN or inf) reached the neighbour search: the net "
-                             "diverged (lower --optim.lr?) or its weights or inputs are not finite")
+    require_finite("knn", q, r, detail=" reached the neighbour search: the net diverged (lower --optim.lr?) or its "
+                   "weights or inputs are not finite")
     B, M = q.shape[:2]
     idx = torch.empty(B, M, k, dtype=torch.int64)
     dist2 = torch.empty(B, M, k, dtype=torch.float64)

@@ -151,3 +151,20 @@ def test_kdtree_threads_follow_torch_s_threads(monkeypatch):
         assert knn_module.kdtree_workers(knn_module.PARALLEL_MIN_NEIGHBOURS) == -1  # an explicit setting wins
     finally:
         torch.set_num_threads(threads)
+
+
+def test_non_finite_points_are_one_named_error_in_the_kd_tree_and_the_vote():
+    """NaN or inf coordinates reach scipy's KD-tree as one NonFiniteError naming the caller, not a traceback."""
+    from training.knn import NonFiniteError
+    from training.model.translation_vote import histogram_peaks
+
+    pts = torch.rand(1, 64, 3)
+    bad = pts.clone()
+    bad[0, 5, 1] = float("nan")
+    with pytest.raises(NonFiniteError, match=r"^knn: non-finite point coordinates \(NaN or inf\) reached the neighbour"):
+        knn(bad, pts, 4, backend="kdtree")
+    bad[0, 5, 1] = float("inf")
+    with pytest.raises(NonFiniteError, match=r"^translation vote: non-finite point coordinates \(NaN or inf\)$"):
+        histogram_peaks(pts, bad)
+    d, i = knn(pts, pts, 1, backend="kdtree")  # finite points pass: each point is its own nearest
+    assert torch.equal(i[0, :, 0], torch.arange(64)) and float(d.max()) == 0.0

@@ -160,11 +160,10 @@ def _pair_offsets(x1: Tensor, x2: Tensor, R: float) -> tuple[Tensor, Tensor, Ten
     import numpy as np
     from scipy.spatial import cKDTree
 
-    from training.knn import NonFiniteError
+    from training.knn import require_finite
 
     a, b = x1.double().numpy(), x2.double().numpy()
-    if not (np.isfinite(a).all() and np.isfinite(b).all()):
-        raise NonFiniteError("translation vote: non-finite point coordinates (NaN or inf)")
+    require_finite("translation vote", a, b)
     parts = []
     for k in range(B):
         pairs = cKDTree(a[k]).sparse_distance_matrix(cKDTree(b[k]), R * 3**0.5 + 1e-3, output_type="ndarray")
