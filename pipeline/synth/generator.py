@@ -52,10 +52,20 @@ class GenerateSummary:
     frames: int = 0
     flow_pairs: int = 0
     test_pairs: int = 0
-    points_per_scan: float = 0.0
     moving_cars: int = 0
     seconds: float = 0.0
     reused: bool = False
+
+    @property
+    def scanned_sequences(self) -> list[str]:
+        """The sequences with Velodyne scans (all, or the test sequence alone: ``SynthConfig.lidar_scans``)."""
+        return [n for n, s in self.sequences.items() if s.get("points_per_scan", 0.0) > 0]
+
+    @property
+    def points_per_scan(self) -> float:
+        """Mean LiDAR points per scan over the scanned sequences (0 without scans)."""
+        scanned = self.scanned_sequences
+        return float(np.mean([self.sequences[n]["points_per_scan"] for n in scanned])) if scanned else 0.0
 
     def lines(self) -> list[str]:
         state = "already present (same config), kept" if self.reused else f"written in {self.seconds:.1f} s"
@@ -63,7 +73,7 @@ class GenerateSummary:
         for name, s in self.sequences.items():
             out.append(f"  sequence {name} ({s['split']}): {s['frames']} frames, {s['moving_cars']} moving cars, "
                        f"{s['parked_cars']} parked, road curvature {s['curvature']:+.5f} /m")
-        scanned = [n for n, s in self.sequences.items() if s.get("points_per_scan", 0) > 0]
+        scanned = self.scanned_sequences
         lidar = (f"{self.points_per_scan:.0f} LiDAR points per scan (sequences {', '.join(scanned)})" if scanned
                  else "no LiDAR scans")
         out.append(f"  {self.frames} frames, {self.flow_pairs} flow pairs, {self.test_pairs} scene-flow test pairs, "
@@ -228,8 +238,6 @@ def _summary_from_json(root: Path, meta: dict, reused: bool) -> GenerateSummary:
         frames=frames,
         flow_pairs=sum(s["frames"] - 1 for s in seqs.values()),
         test_pairs=int(meta.get("sceneflow_pairs", 0)),
-        points_per_scan=float(np.mean(scanned)) if (scanned := [s["points_per_scan"] for s in seqs.values()
-                                                                 if s["points_per_scan"] > 0]) else 0.0,
         moving_cars=sum(s["moving_cars"] for s in seqs.values()),
         reused=reused,
     )
