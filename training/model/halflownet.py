@@ -289,7 +289,8 @@ class HALFlowNet(nn.Module):
             vote = VoteConfig(max_translation_m=cfg.translation_vote_max_m)
             if cfg.rigid_vote:  # and rotation: frame 2 moved by the inverse motion, R⁻¹ (q − t) = (q − t) R
                 # row-wise; the features keep the offsets of the unturned cloud (a few degrees apart)
-                rigid = RigidVoteConfig(vote=vote, range_weighted=cfg.rigid_vote_far)
+                rigid = RigidVoteConfig(vote=vote, range_weighted=cfg.rigid_vote_far,
+                                         yaw_search_deg=cfg.rigid_vote_yaw_deg)
                 turn, shift = vote_rigid(p1.xyz[0], p2.xyz[0], rigid, x2 if cfg.rigid_vote_dense else None,
                                          -centre[:, 0])
                 p2.xyz = [(x - shift[:, None]) @ turn for x in p2.xyz]

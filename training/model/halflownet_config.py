@@ -67,6 +67,11 @@ class HALFlowConfig:
         by their distance from the camera instead of counted alike: a wrong motion shows most at range, and
         in dense traffic the movers crowd the near field (:class:`~training.model.rigid_vote.RigidVoteConfig`
         ``range_weighted``; twenty-first round). Needs ``rigid_vote`` or ``eval_anchor``; false = counted alike.
+    rigid_vote_yaw_deg: degrees; the rigid vote first scans the camera's turn about its y axis within ±this
+        (1° steps), the turn under which the most frame-1 points agree on one translation, and starts its
+        trimmed rounds there (:class:`~training.model.rigid_vote.RigidVoteConfig` ``yaw_search_deg``): from
+        no turn they reach about a degree, KITTI turns up to 2.6° per frame in its 95th percentile
+        (docs/learned-flow.md, thirty-second round). Needs ``rigid_vote`` or ``eval_anchor``; 0 = no scan.
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -157,6 +162,7 @@ class HALFlowConfig:
     rigid_vote: bool = False
     rigid_vote_dense: bool = False
     rigid_vote_far: bool = False
+    rigid_vote_yaw_deg: float = 0.0
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -206,6 +212,11 @@ class HALFlowConfig:
             if getattr(self, name) and not (self.rigid_vote or self.eval_anchor):
                 raise ConfigError(f"model.{name} changes the rigid vote: it needs model.rigid_vote or "
                                   "model.eval_anchor")
+        if not 0 <= self.rigid_vote_yaw_deg < 90:
+            raise ConfigError(f"model.rigid_vote_yaw_deg must be in [0, 90), got {self.rigid_vote_yaw_deg}")
+        if self.rigid_vote_yaw_deg and not (self.rigid_vote or self.eval_anchor):
+            raise ConfigError("model.rigid_vote_yaw_deg changes the rigid vote: it needs model.rigid_vote or "
+                              "model.eval_anchor")
         if self.eval_gate_k < 0:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
@@ -253,10 +264,12 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, and ``rigid_vote_dense`` / ``rigid_vote_far`` where no rigid vote is left."""
+        ``eval_gate_k``, and ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` where no rigid
+        vote is left."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0, rigid_vote_dense=self.rigid_vote_dense and keep_vote,
-                       rigid_vote_far=self.rigid_vote_far and keep_vote)
+                       rigid_vote_far=self.rigid_vote_far and keep_vote,
+                       rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0)
 
     @property
     def output_points(self) -> tuple[int, ...]:

@@ -182,9 +182,27 @@ def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
     pairs count (default 1; e.g. its range, so that the sparse far scene is not outvoted by a dense near
     mover)."""
     cfg = config or VoteConfig()
+    R, c = cfg.max_translation_m, cfg.cell_m
+    n = int(round(2 * R / c))
+    grid, found = offset_histogram(xyz1, xyz2, cfg, weights)
+    peak = grid == torch.nn.functional.max_pool3d(grid[:, None], 3, stride=1, padding=1)[:, 0]
+    score = torch.where(peak, grid, torch.full_like(grid, -1.0)).reshape(grid.shape[0], -1)
+    k = min(cfg.candidates, score.shape[1])
+    best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
+    ix, iy, iz = best // (n * n), (best // n) % n, best % n
+    t = (torch.stack([ix, iy, iz], dim=-1).to(grid.dtype) + 0.5) * c - R
+    return t, found
+
+
+def offset_histogram(xyz1: Tensor, xyz2: Tensor, config: VoteConfig,
+                     weights: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """The smoothed histogram (B, n, n, n) of the offsets ``q_j − p_i`` between ``xyz1`` (B, M, 3) and ``xyz2``
+    (B, N, 3) inside the search cube ``|d|_∞ ≤ max_translation_m`` (n = 2·max_translation_m / cell_m cells per
+    axis, float32 counts, each pair counting its frame-1 point's ``weights`` (B, M) or 1), and (B,) whether
+    any offset fell inside. Metres. The fuller its fullest cell, the more points agree on one translation."""
     x1, x2 = xyz1.detach().float(), xyz2.detach().float()
     B = x1.shape[0]
-    R, c = cfg.max_translation_m, cfg.cell_m
+    R, c = config.max_translation_m, config.cell_m
     n = int(round(2 * R / c))
     which, first, d = _pair_offsets(x1, x2, R)
     cell = torch.floor((d + R) / c).long()
@@ -196,14 +214,7 @@ def histogram_peaks(xyz1: Tensor, xyz2: Tensor, config: VoteConfig | None = None
         vote = weights.detach().to(x1.dtype)[which, first]
     counts = torch.zeros(B * n * n * n, dtype=x1.dtype, device=x1.device).index_add_(0, flat, vote)
     found = torch.zeros(B, dtype=torch.bool, device=x1.device).index_fill_(0, which, True)
-    grid = _binomial_blur(counts.reshape(B, n, n, n))
-    peak = grid == torch.nn.functional.max_pool3d(grid[:, None], 3, stride=1, padding=1)[:, 0]
-    score = torch.where(peak, grid, torch.full_like(grid, -1.0)).reshape(B, -1)
-    k = min(cfg.candidates, score.shape[1])
-    best = score.topk(k, dim=1).indices  # (B, K) the fullest local maxima
-    ix, iy, iz = best // (n * n), (best // n) % n, best % n
-    t = (torch.stack([ix, iy, iz], dim=-1).to(x1.dtype) + 0.5) * c - R
-    return t, found
+    return _binomial_blur(counts.reshape(B, n, n, n)), found
 
 
 @torch.no_grad()
