@@ -70,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--baselines", default="icp-p2p,rvote", help="comma list: icp-p2p, icp-p2l, fgr, tvote, rvote, zero")
     p.add_argument("--scenes", type=int, default=0, help="the first N scenes of each split (0: all)")
     p.add_argument("--n-points", type=int, default=2048, help="points sampled per cloud")
+    p.add_argument("--n-score", type=int, default=0,
+                   help="points scored per scene (0: the first net's finest level, else a quarter of --n-points)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     args = p.parse_args(argv)
 
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                                                              name=f"rvote, scan ±{scan:g}°")) for scan in args.scan]
             else:
                 methods.append(make_baseline(base))
-        n_score = next((m.n_score for m in methods if isinstance(m, NetMethod)), 512)
+        n_score = args.n_score or next((m.n_score for m in methods if isinstance(m, NetMethod)), args.n_points // 4)
         cfg = ProtocolConfig(protocol="fps", n_points=args.n_points, n_score=n_score)
         print("| split | turn added | method | EPE3D (m) | static | moving |\n|---|---|---|---|---|---|")
         for split_name, folder in args.split:

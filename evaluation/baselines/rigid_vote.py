@@ -24,9 +24,11 @@ class RigidVoteBaseline:
     dense_target: the rigid rounds match pc1's samples against the whole pc2 given, not only its samples,
         as the demo preset's net does (``model.rigid_vote_dense``; twenty-first round); false = the
         samples alone (the eighteenth to twentieth rounds' ``rvote``). The default config weighs the choice
-        among the vote's hypotheses by range, as the preset's net does (``model.rigid_vote_far``)."""
+        among the vote's hypotheses by range and scans the camera's turn within ±6° first, as the preset's net
+        does (``model.rigid_vote_far``, ``model.rigid_vote_yaw_deg``; before the thirty-second round the
+        ``rvote`` rows started the rounds at no turn)."""
 
-    config: RigidVoteConfig = field(default_factory=lambda: RigidVoteConfig(range_weighted=True))
+    config: RigidVoteConfig = field(default_factory=lambda: RigidVoteConfig(range_weighted=True, yaw_search_deg=6.0))
     name: str = "rvote"
     sample_points: int = 512
     dense_target: bool = True

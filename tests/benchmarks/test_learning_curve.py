@@ -19,6 +19,7 @@ def test_start_demo_is_the_preset_plus_the_set_list():
 def test_start_paper_switches_the_departures_off():
     cfg = demo_train_config("c", "r", start="paper")
     assert not cfg.model.ego_head and cfg.loss.flow_smooth == 0.0 and cfg.data.lidar_rings == 0.0
+    assert not cfg.model.eval_anchor and cfg.model.rigid_vote_yaw_deg == 0.0
     assert preset("c", "r").model.ego_head  # the preset has them on, so the two starts differ
 
 

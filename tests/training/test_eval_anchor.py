@@ -107,8 +107,9 @@ def test_eval_gate_k_needs_the_anchor_and_goes_with_it():
         _cfg(eval_gate_k=8)
     with pytest.raises(ConfigError, match="eval_gate_k"):
         _cfg(eval_anchor=True, eval_gate_k=-1)
-    full = _cfg(eval_anchor=True, eval_gate_k=8, rigid_vote_dense=True, rigid_vote_far=True)
+    full = _cfg(eval_anchor=True, eval_gate_k=8, rigid_vote_dense=True, rigid_vote_far=True, rigid_vote_yaw_deg=6.0)
     off = full.without_anchor()
-    assert not (off.eval_anchor or off.eval_gate_k or off.rigid_vote_dense or off.rigid_vote_far)
+    assert not (off.eval_anchor or off.eval_gate_k or off.rigid_vote_dense or off.rigid_vote_far
+                or off.rigid_vote_yaw_deg)
     kept = dataclasses.replace(full, rigid_vote=True).without_anchor()  # a vote left: its options stay
-    assert kept.rigid_vote_dense and kept.rigid_vote_far and not kept.eval_gate_k
+    assert kept.rigid_vote_dense and kept.rigid_vote_far and kept.rigid_vote_yaw_deg == 6.0 and not kept.eval_gate_k

@@ -13,7 +13,7 @@ from core.errors import ConfigError
 from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
 from training.model.halflownet_config import HALFlowConfig
-from training.model.rigid_vote import RigidVoteConfig, vote_rigid
+from training.model.rigid_vote import RigidVoteConfig, turn_scan, vote_rigid
 from training.model.translation_vote import vote_translation
 
 
@@ -116,6 +116,65 @@ def test_bad_settings_are_refused():
     for name in ("rigid_vote_dense", "rigid_vote_far"):
         with pytest.raises(ConfigError, match=name):
             HALFlowConfig(translation_vote=True, **{name: True})
+    for kw in ({"yaw_search_deg": -1.0}, {"yaw_search_deg": 90.0}, {"yaw_step_deg": 0.0}, {"yaw_resolution_deg": 0.0}):
+        with pytest.raises(ValueError):
+            RigidVoteConfig(**kw)
+    with pytest.raises(ConfigError, match="rigid_vote_yaw_deg"):
+        HALFlowConfig(translation_vote=True, rigid_vote_yaw_deg=6.0)
+    with pytest.raises(ConfigError, match="rigid_vote_yaw_deg"):
+        HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_yaw_deg=-1.0)
+
+
+ORIGIN = torch.zeros(1, 3, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 3.0, -5.0, 6.0])
+def test_the_turn_scan_finds_the_turn_to_its_resolution(yaw):
+    """Step 0: the turn under which the most points agree on one translation is the camera's, to the scan's
+    finest step (1°); with no turn it picks none (ties keep the smaller turn)."""
+    R_true, t_true = _turn(yaw), torch.tensor([0.05, 0.02, 1.2])
+    pc1, pc2 = _street(900), _street(900, seed=1) @ R_true.T + t_true
+    found = math.degrees(float(turn_scan(pc1, pc2, RigidVoteConfig(yaw_search_deg=6.0), ORIGIN)[0]))
+    assert abs(found - yaw) <= 0.5 + 1e-9, found
+    assert RigidVoteConfig(yaw_search_deg=3.0, yaw_step_deg=1.0).turns_deg == (0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0)
+
+
+@pytest.mark.parametrize("yaw", [6.0, -6.0])
+def test_a_sharp_turn_is_registered_from_the_scanned_turn_where_the_rounds_from_none_get_lost(yaw):
+    """A turn of 6° moves the facade 30 m ahead by 3 m sideways, past the rounds' widest radius: from no turn
+    they end decimetres off; started at the scanned turn, centimetres."""
+    R_true, t_true = _turn(yaw), torch.tensor([0.05, 0.02, 1.2])
+    pc1, pc2 = _street(900), _street(900, seed=1) @ R_true.T + t_true
+    err = {}
+    for scan in (0.0, 6.0):
+        R, t = vote_rigid(pc1, pc2, RigidVoteConfig(yaw_search_deg=scan))
+        err[scan] = _static_error(R[0], t[0], pc1[0], R_true, t_true)
+    assert err[6.0] < 0.08, err
+    assert err[6.0] < err[0.0] / 5, err
+
+
+def test_a_scan_that_finds_no_turn_leaves_the_vote_as_it_was():
+    """Where the scan picks no turn, every later step runs on the same numbers: the same motion to the bit."""
+    R_true, t_true = _turn(0.0), torch.tensor([0.05, 0.02, 1.2])
+    pc1, pc2 = _street(900), _street(900, seed=1) @ R_true.T + t_true
+    cfg = RigidVoteConfig(range_weighted=True, yaw_search_deg=6.0)
+    assert float(turn_scan(pc1, pc2, cfg, ORIGIN)[0]) == 0.0
+    plain = vote_rigid(pc1, pc2, RigidVoteConfig(range_weighted=True))
+    scanned = vote_rigid(pc1, pc2, cfg)
+    assert all(torch.equal(a, b) for a, b in zip(plain, scanned))
+
+
+def test_the_turn_pivots_on_the_camera_given_as_origin():
+    """The net votes in a frame centred on frame 1's points and passes the camera's position there: the same
+    motion comes out, moved into that frame, for a turn the scan has to find."""
+    R_true, t_true = _turn(-4.0), torch.tensor([0.05, 0.02, 1.2])
+    pc1, pc2 = _street(900), _street(900, seed=1) @ R_true.T + t_true
+    cfg = RigidVoteConfig(yaw_search_deg=6.0)
+    centre = pc1.mean(dim=1)
+    R, t = vote_rigid(pc1 - centre[:, None], pc2 - centre[:, None], cfg, origin=-centre.double())
+    # in the centred frame q − c = R (p − c) + t', so t' = t + R c − c: the same R, and t = t' − R c + c
+    t_back = t[0] - R[0] @ centre[0] + centre[0]
+    assert _static_error(R[0], t_back, pc1[0], R_true, t_true) < 0.08
 
 
 def test_a_dense_target_holding_each_points_counterpart_gives_the_exact_motion():
