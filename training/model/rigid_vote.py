@@ -92,7 +92,8 @@ class RigidVoteConfig:
 
     @property
     def turns_deg(self) -> tuple[float, ...]:
-        """The scanned turns, degrees: 0 first, then ±1, ±2, … steps (so a tie keeps the smaller turn)."""
+        """The first pass's turns, degrees: 0 first, then ±1, ±2, … times ``yaw_step_deg`` up to ``yaw_search_deg``
+        (in this order, so that a tie keeps the smaller turn)."""
         steps = int(self.yaw_search_deg / self.yaw_step_deg + 1e-9)
         return (0.0, *(s * k * self.yaw_step_deg for k in range(1, steps + 1) for s in (1, -1)))
 
