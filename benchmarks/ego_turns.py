@@ -12,8 +12,8 @@ on exactly the same points (the ``fps`` protocol, as ``monoflow-evaluate`` draws
         --split own=cache/demo/world_varied/sceneflow/flownet3d --turns 0,2,-2,4,-4 --scan 0,6
 
 ``--scan`` lists values of the net's ``model.rigid_vote_yaw_deg`` (the rigid vote's turn scan, an
-inference-only switch) to score each net with, overriding the checkpoint's; the ``rvote`` baseline is scored
-with the same scans. Camera frames (x right, y down, z forward), metres, degrees.
+inference-only switch; ``NetMethod(turn_scan=…)``, ``monoflow-evaluate run --turn-scan``) to score each net with,
+overriding the checkpoint's; the ``rvote`` baseline is scored with the same scans. Camera frames (x right, y down, z forward), metres, degrees.
 """
 
 from __future__ import annotations
@@ -89,9 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         methods = []
         for name, path in args.checkpoint:
             for scan in args.scan:
-                net = NetMethod(path, device="cpu", name=f"{name}, scan ±{scan:g}°")
-                net.config = net.net.config = dataclasses.replace(net.config, rigid_vote_yaw_deg=scan)
-                methods.append(net)
+                methods.append(NetMethod(path, device="cpu", name=f"{name}, scan ±{scan:g}°", turn_scan=scan))
         for base in [b.strip() for b in args.baselines.split(",") if b.strip()]:
             if base == "rvote":
                 methods += [BaselineMethod(RigidVoteBaseline(RigidVoteConfig(range_weighted=True, yaw_search_deg=scan),

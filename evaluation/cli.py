@@ -32,6 +32,13 @@ def _csv(text: str) -> list[str]:
     return [t for t in (x.strip() for x in text.split(",")) if t]
 
 
+def _degrees(flag: str, text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{flag} must be 'as-trained' or a number of degrees, got {text!r}") from None
+
+
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
               "score_in_view": "all points scored", "ego_check": "no ego check"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
@@ -103,6 +110,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
                         "net can be scored both ways; a forced setting that differs is named in the row")
+    r.add_argument("--turn-scan", default="as-trained",
+                   help="degrees: each checkpoint's turn scan before the rigid vote (model.rigid_vote_yaw_deg, "
+                        "inference only; needs the anchor or the rigid vote): as trained, or a number (0 = off, 6 = "
+                        "the demo preset's), so a net trained before the scan existed can use it; a change is named "
+                        "in the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -219,7 +231,8 @@ def _run(args) -> int:
     scenes = split
     first = scenes[0]
     anchor = {"as-trained": None, "on": True, "off": False}[args.eval_anchor]
-    nets = [NetMethod(c, device=args.device, eval_anchor=anchor) for c in args.checkpoint]
+    turn_scan = None if args.turn_scan == "as-trained" else _degrees("--turn-scan", args.turn_scan)
+    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan) for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

@@ -74,11 +74,13 @@ class NetMethod:
     diagnostics such as ``benchmarks.sensor_gap --per-level``). ``eval_anchor`` (true / false) overrides the
     checkpoint's inference-only switch ``model.eval_anchor`` (:class:`~training.model.halflownet_config.HALFlowConfig`;
     None: as trained), so one trained net can be scored both ways; an override that changes it is named in
-    the row (", anchored" / ", not anchored").
+    the row (", anchored" / ", not anchored"). ``turn_scan`` (degrees) likewise overrides the inference-only
+    ``model.rigid_vote_yaw_deg`` (the rigid vote's turn scan, docs/learned-flow.md, thirty-second round; 0 =
+    off), so a net trained before the scan existed can be scored with it; a change is named (", turn scan ±6°").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
-                 level: int = 0, eval_anchor: bool | None = None) -> None:
+                 level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -98,6 +100,14 @@ class NetMethod:
             except ConfigError as e:
                 raise ConfigError(f"{path}: {e}") from None
             suffix = ", anchored" if eval_anchor else ", not anchored"
+        if turn_scan is not None and turn_scan != getattr(self.config, "rigid_vote_yaw_deg", None):
+            if not hasattr(self.config, "rigid_vote_yaw_deg"):
+                raise ConfigError(f"{path}: the {self.model_name} net has no rigid vote to scan turns for")
+            try:
+                self.config = net.config = replace(self.config, rigid_vote_yaw_deg=float(turn_scan))
+            except ConfigError as e:
+                raise ConfigError(f"{path}: {e}") from None
+            suffix += f", turn scan ±{turn_scan:g}°"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)

@@ -180,6 +180,8 @@ def test_bad_options_and_checkpoints(world: Path, checkpoint: Path, tmp_path: Pa
          "needs at least 64 points"),
         (["--checkpoint", str(tmp_path / "missing.pt")], "checkpoint not found"),
         (["--checkpoint", str(checkpoint), "--eval-anchor", "on"], f"{checkpoint}: model.eval_anchor"),
+        (["--checkpoint", str(checkpoint), "--turn-scan", "6"], f"{checkpoint}: model.rigid_vote_yaw_deg"),
+        (["--checkpoint", str(checkpoint), "--turn-scan", "six"], "--turn-scan must be 'as-trained' or a number"),
     ]
     for extra, message in cases:
         assert main(["run", "--split", split, "--out", o, "--no-progress", *extra]) == 2, extra
@@ -352,3 +354,22 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     plain_score = _stacked(net, ["rigid-polish"], ("score_in_view",))[1]
     assert not plain_score.config.score_in_view and rows[2].config.score_in_view
     assert plain_score.name == "zero + rigid polish (all points scored)"
+
+
+def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, tmp_path: Path) -> None:
+    """``--turn-scan``: an anchored net trained before the scan existed (``rigid_vote_yaw_deg`` 0) scored with it;
+    the row is named, the config changed for inference only, and ``as-trained`` leaves it alone."""
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
+                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    plain, scanned = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", turn_scan=6.0)
+    assert plain.net.config.rigid_vote_yaw_deg == 0.0 and scanned.net.config.rigid_vote_yaw_deg == 6.0
+    assert scanned.name == "ours (run, step 3, turn scan ±6°)" and plain.name == "ours (run, step 3)"
+    assert NetMethod(path, device="cpu", turn_scan=0.0).name == plain.name  # no change, no name
+    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
+    assert np.isfinite(scanned(scene.pc1, scene.pc2)).all()
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--turn-scan", "6", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, turn scan ±6°)"]
