@@ -332,3 +332,27 @@ def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
         assert all(torch.isfinite(f).all() for f in out.flows)
         assert seen.pop() == (n0, n0, want)
         assert torch.allclose(origins.pop(), -pc1.mean(dim=1))  # the camera, in the net's centred frame
+
+
+
+def test_a_turn_that_fills_the_histogram_hardly_more_than_none_is_not_taken(monkeypatch):
+    """``yaw_margin``: at no turn a 1° neighbour can fill the fullest cell a few per cent more by chance, and a
+    start 1° off can leave the rounds off; a turn is taken only when it fills it clearly more."""
+    import training.model.rigid_vote as rigid_vote
+
+    R_true, t_true = _turn(3.0), torch.tensor([0.05, 0.02, 1.2])
+    pc1, pc2 = _street(900), _street(900, seed=1) @ R_true.T + t_true
+    full = {}
+    real = rigid_vote._fullest
+
+    def spy(xyz1, xyz2, cfg, origin, angle):
+        f = real(xyz1, xyz2, cfg, origin, angle)
+        full[round(math.degrees(float(angle[0])), 6)] = float(f[0])
+        return f
+
+    monkeypatch.setattr(rigid_vote, "_fullest", spy)
+    taken = math.degrees(float(turn_scan(pc1, pc2, RigidVoteConfig(yaw_search_deg=6.0), ORIGIN)[0]))
+    assert abs(taken - 3.0) <= 0.5 and max(full.values()) > 1.05 * full[0.0]
+    ratio = max(full.values()) / full[0.0]
+    refused = turn_scan(pc1, pc2, RigidVoteConfig(yaw_search_deg=6.0, yaw_margin=ratio), ORIGIN)
+    assert float(refused[0]) == 0.0  # the same scan with a margin above what the turn gains: no turn
