@@ -25,13 +25,7 @@ import numpy as np
 
 from benchmarks.named_folders import named_folder
 from core.errors import run_cli
-
-
-def yaw_matrix(deg: float) -> np.ndarray:
-    """The rotation (3, 3) by ``deg`` degrees about the camera's y axis (x right, y down, z forward)."""
-    a = np.deg2rad(deg)
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+from pipeline.synth.world import rot_y
 
 
 def turned_frame2(sample, deg: float):
@@ -39,7 +33,7 @@ def turned_frame2(sample, deg: float):
     camera 2's y axis: ``pc2`` and ``p + flow`` rotated alike, the pose (when given) composed. Colours kept."""
     if deg == 0:
         return sample
-    A = yaw_matrix(deg)
+    A = rot_y(np.deg2rad(deg))  # about camera 2's y axis (x right, y down, z forward)
     pc2 = (sample.pc2.astype(np.float64) @ A.T).astype(np.float32)
     moved = (sample.pc1.astype(np.float64) + sample.flow) @ A.T
     pose = None

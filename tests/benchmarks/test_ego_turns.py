@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.ego_turns import main, turned_frame2, yaw_matrix
+from benchmarks.ego_turns import main, turned_frame2
 from evaluation.sample import SceneFlowSample
+from pipeline.synth.world import rot_y
 from testkit.rigid_scene import motion, structured_scene
 
 
@@ -26,7 +27,7 @@ def _sample(seed: int = 0, n: int = 400) -> SceneFlowSample:
 def test_the_turn_rotates_frame_2_and_the_truth_alike_and_composes_the_pose():
     s = _sample()
     t = turned_frame2(s, 3.0)
-    A = yaw_matrix(3.0)
+    A = rot_y(np.deg2rad(3.0))
     assert np.allclose(A @ A.T, np.eye(3)) and np.isclose(np.linalg.det(A), 1.0) and np.allclose(A[1], [0, 1, 0])
     assert np.allclose(t.pc2, s.pc2 @ A.T, atol=1e-5)
     assert np.allclose(t.pc1 + t.flow, (s.pc1 + s.flow) @ A.T, atol=1e-4)  # movers too

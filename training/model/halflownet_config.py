@@ -68,7 +68,7 @@ class HALFlowConfig:
         in dense traffic the movers crowd the near field (:class:`~training.model.rigid_vote.RigidVoteConfig`
         ``range_weighted``; twenty-first round). Needs ``rigid_vote`` or ``eval_anchor``; false = counted alike.
     rigid_vote_yaw_deg: degrees; the rigid vote first scans the camera's turn about its y axis within ±this
-        (1° steps), the turn under which the most frame-1 points agree on one translation, and starts its
+        (2° steps, then ±1° around the best), the turn under which the most frame-1 points agree on one translation, and starts its
         trimmed rounds there (:class:`~training.model.rigid_vote.RigidVoteConfig` ``yaw_search_deg``): from
         no turn they reach about a degree, KITTI turns up to 2.6° per frame in its 95th percentile
         (docs/learned-flow.md, thirty-second round). Needs ``rigid_vote`` or ``eval_anchor``; 0 = no scan.
