@@ -98,7 +98,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.clusters import object_clusters, radius_components
+from core.clusters import object_clusters, radius_components, view_interior
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.view_prune import ViewExtent, ViewPruneConfig, rigid_fit
@@ -129,6 +129,13 @@ class RigidPolishConfig:
     rigid_objects: make every object-sized cluster of frame 1 move rigidly and try a two-way fit for it
         (step 6 of the module docstring); false = steps 1–5 only (the fifth round's polish).
     object_max_extent: metres; a cluster longer than this along any axis is a wall or a row of things.
+    object_whole_extent: metres; a cluster wholly inside frame 1's own view (every point at least
+        ``cluster_radius`` from its azimuth edges and its farthest depth, :func:`core.clusters.view_interior`)
+        is an object up to this long: both its ends are seen, so its length is its own, not the view's.
+    object_min_link: metres; a cluster that is no object is split again at half the link radius, and so on down
+        to this radius; its parts that lie wholly inside the view and are no longer than ``object_whole_extent``
+        are objects (:func:`core.clusters.object_clusters` ``min_link_m``): things that touch in a dense cloud
+        come apart. ``cluster_radius`` = no second split.
     object_max_share: a cluster holding more than this share of the cloud is not an object (1 = the extent alone
         decides: a near car can hold a large share; 0.1 before the twenty-seventh round).
     object_margin: the two-way fit replaces the cluster's median motion when its score is below
@@ -174,6 +181,8 @@ class RigidPolishConfig:
     rigid_objects: bool = True
     object_max_extent: float = 6.0
     object_max_share: float = 1.0
+    object_whole_extent: float = 6.0
+    object_min_link: float = 0.8
     object_margin: float = 0.4
     object_search: float = 2.5
     object_search_peaks: int = 8
@@ -402,8 +411,12 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
     :func:`_explained`). ``T`` (4, 4): the polished camera motion; ``landed`` (N,): whether each point moved by
     ``T`` lies within ``static_scale_min`` of a pc2 point (step 4's test, reused by step 6b); ``view``: pc2's
     field of view for the scores, or None (:func:`_in_view`)."""
+    whole = None
+    if cfg.object_whole_extent > cfg.object_max_extent or cfg.object_min_link < cfg.cluster_radius:
+        whole = view_interior(p1, cfg.cluster_radius)
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
-                              cfg.object_max_share)
+                              cfg.object_max_share, whole, cfg.object_whole_extent,
+                              min(cfg.object_min_link, cfg.cluster_radius))
     if not objects:
         return
     icp_cfg = _cluster_icp(cfg, two_way=True)

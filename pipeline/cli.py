@@ -6,6 +6,7 @@ Usage::
         --pose net --pose_checkpoint posenet.pth.tar --scale.mode camera-height --out cache [--config run.toml]
     monoflow-preprocess merge CACHE_ROOT     # write manifest.json once every shard's blocks are present
     monoflow-preprocess verify CACHE_ROOT    # decode every block, check it against the manifest
+    monoflow-preprocess kitti-sceneflow DATA_SCENE_FLOW OUT   # KITTI 2015 → HPLFlowNet-layout test split
 
 ``run`` is the default sub-command. Options come from ``--config FILE.toml`` (top-level keys and
 ``[filters]`` / ``[scale]`` tables) overridden by flags; every option is listed by ``run --help``.
@@ -19,7 +20,7 @@ import sys
 
 from core.errors import run_cli
 
-COMMANDS = ("run", "merge", "verify")
+COMMANDS = ("run", "merge", "verify", "kitti-sceneflow")
 
 
 def _run_parser() -> argparse.ArgumentParser:
@@ -44,12 +45,21 @@ def _top_parser() -> argparse.ArgumentParser:
         epilog="'run' is the default: `monoflow-preprocess --root DATA ...` runs stage one. "
         "See `monoflow-preprocess run --help` for its options.",
     )
-    sub = p.add_subparsers(dest="command", metavar="{run,merge,verify}")
+    sub = p.add_subparsers(dest="command", metavar="{run,merge,verify,kitti-sceneflow}")
     sub.add_parser("run", allow_abbrev=False, help="run stage one (default)", add_help=False)
     m = sub.add_parser("merge", allow_abbrev=False, help="write a cache's manifest from its finished blocks (after sharded runs)")
     m.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
     v = sub.add_parser("verify", allow_abbrev=False, help="decode and check every block of a finished cache")
     v.add_argument("cache_root", help="the cache folder: <out>/<dataset>/<config-hash>")
+    k = sub.add_parser("kitti-sceneflow", allow_abbrev=False,
+                       help="write KITTI Scene Flow 2015's training scenes as point pairs in HPLFlowNet's "
+                            "KITTI_processed_occ_final layout (pipeline/kitti/stereo_flow.py)")
+    k.add_argument("root", help="the unpacked data_scene_flow folder (holding training/disp_occ_0, disp_occ_1, "
+                                "flow_occ and calib_cam_to_cam, the last from data_scene_flow_calib)")
+    k.add_argument("out", help="the split folder to write (OUT/000000/pc1.npy, pc2.npy, …); finished scenes "
+                               "are kept, so an interrupted run resumes")
+    k.add_argument("--scenes", type=int, default=200, help="scenes 0 … N−1 (200: all, as HPLFlowNet writes them; "
+                                                          "evaluate with --protocol hplflownet --mapping to keep its 142)")
     return p
 
 
@@ -80,6 +90,18 @@ def _cmd_verify(root: str) -> int:
     return 0 if report.ok else 1
 
 
+def _cmd_kitti_sceneflow(root: str, out: str, scenes: int) -> int:
+    from core.errors import ConfigError
+    from pipeline.kitti.stereo_flow import SCENES, build_split
+
+    if not 1 <= scenes <= SCENES:
+        raise ConfigError(f"--scenes must be in 1..{SCENES}, got {scenes}")
+    written = build_split(root, out, range(scenes))
+    print(f"{out}: {len(written)} scenes (HPLFlowNet layout; evaluate with monoflow-evaluate run --split {out} "
+          f"--protocol hplflownet --mapping <devkit>/mapping/train_mapping.txt)")
+    return 0
+
+
 def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS + ("-h", "--help"):
@@ -89,6 +111,8 @@ def _main(argv: list[str] | None) -> int:
     args = _top_parser().parse_args(argv)
     if args.command == "merge":
         return _cmd_merge(args.cache_root)
+    if args.command == "kitti-sceneflow":
+        return _cmd_kitti_sceneflow(args.root, args.out, args.scenes)
     return _cmd_verify(args.cache_root)
 
 

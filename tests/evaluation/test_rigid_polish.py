@@ -145,6 +145,44 @@ def test_object_search_finds_a_car_beyond_the_fits_reach(seed):
     assert err_searched[~is_car].mean() <= err_local[~is_car].mean() + 0.002
 
 
+def _street_with_lorry(seed: int, lorry_motion: np.ndarray):
+    """``_street_with_car``'s street with an 8 m lorry (600 points, centre 14 m ahead) in place of the car: longer
+    than ``object_max_extent`` (6 m), wholly inside the view; it drives ``lorry_motion`` on top of SMALL. As in a
+    stereo split (pc2 = the same surface points one frame later), frame 2 holds the lorry's own points moved;
+    the rest of the street is sampled anew."""
+    rng = np.random.default_rng(seed)
+    lorry = box_surface(rng, (0.5, 0.4, 14.0), (2.5, 2.4, 8.0), 600)
+
+    def frame(shift):
+        wall = np.c_[np.full(800, -7.0), rng.uniform(-2, 1.6, 800), rng.uniform(2, 30, 800)]
+        facade = np.c_[rng.uniform(-7, 8, 600), rng.uniform(-2, 1.6, 600), np.full(600, 30.0)]
+        parked = [box_surface(rng, c, (1.8, 1.6, 4.2), 150) for c in ((4.0, 0.8, 10.0), (-3.5, 0.8, 18.0))]
+        return np.concatenate([wall, facade, *parked, lorry + shift])
+
+    pc1 = frame(0.0)
+    pc2 = apply_transform(SMALL, frame(lorry_motion))
+    is_lorry = np.arange(len(pc1)) >= len(pc1) - 600
+    truth = apply_transform(SMALL, pc1) - pc1
+    truth[is_lorry] = apply_transform(SMALL, pc1[is_lorry] + lorry_motion) - pc1[is_lorry]
+    return pc1, pc2, truth, is_lorry
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_lorry_seen_whole_is_an_object_however_long(seed):
+    """An oncoming 8 m lorry, which the method left wholly with the camera's motion, closes 1.4 m along its own
+    length. At ``object_max_extent`` 6 m it is no object (a wall, for all the extent can tell) and keeps the
+    camera's motion; wholly inside the view, with ``object_whole_extent`` 12 m, it is one, and step 6b finds
+    its motion. The wall, which runs out to the view's farthest depth, is no object at either setting."""
+    pc1, pc2, truth, is_lorry = _street_with_lorry(seed, np.array([0.0, 0.0, -1.4]))
+    flow = apply_transform(SMALL, pc1) - pc1 + np.random.default_rng(seed + 10).normal(0, 0.03, pc1.shape)
+    short, _, _ = polish_rigid(pc1, pc2, flow)
+    whole, _, _ = polish_rigid(pc1, pc2, flow, RigidPolishConfig(object_whole_extent=12.0))
+    err_short, err_whole = (np.linalg.norm(f - truth, axis=1) for f in (short, whole))
+    assert err_short[is_lorry].mean() > 1.0 and err_whole[is_lorry].mean() < 0.1, (err_short[is_lorry].mean(),
+                                                                                  err_whole[is_lorry].mean())
+    assert err_whole[~is_lorry].mean() <= err_short[~is_lorry].mean() + 0.002
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_object_score_neither_matches_nor_misses_points_carried_out_of_view(seed):
     """A near car comes 1.5 m closer and its lower part drops below the sensor's lowest beam (−12°), so frame 2
