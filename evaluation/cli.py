@@ -40,7 +40,8 @@ def _degrees(flag: str, text: str) -> float:
 
 
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
-              "score_in_view": "all points scored", "ego_check": "no ego check"}
+              "score_in_view": "all points scored", "ego_check": "no ego check",
+              "object_whole_extent": "extent rule alone"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 POLISH_HELP = {
@@ -60,6 +61,10 @@ POLISH_HELP = {
                  "the scene refused, both by the share of frame 1 explained (each occupied 1 m cube counting "
                  "once); off = the net's motion and its registration as they come, the row named '<net> + "
                  "rigid polish (no ego check)'",
+    "object_whole_extent": "the rigid polish's object rule (RigidPolishConfig.object_whole_extent): a cluster wholly "
+                           "inside frame 1's view, both its ends seen, is an object up to 12 m long (a van, a "
+                           "lorry, a bus), one that reaches the view's edge up to 6 m; off = 6 m for every cluster, "
+                           "the row named '<net> + rigid polish (extent rule alone)'",
 }
 """Each of those switches' ``--help`` text."""
 

@@ -48,7 +48,9 @@ usable around any method, combines the two:
 6. (``rigid_objects``) every object-sized cluster of frame 1 (:func:`core.clusters.object_clusters`: a
    single-linkage component no longer than ``object_max_extent`` on any axis — things, not walls —
    however many of the cloud's points it holds: a car right ahead can hold a third of them, and counted
-   out by a share of 0.1 it kept the method's flow; docs/learned-flow.md, twenty-seventh round) moves
+   out by a share of 0.1 it kept the method's flow; docs/learned-flow.md, twenty-seventh round; or no longer
+   than ``object_whole_extent`` when it lies wholly inside frame 1's view, so that both its ends are seen: a
+   van, a lorry, a bus; thirty-third round) moves
    rigidly: it takes the ego-motion's rotation and the median translation of the flow so far (one point
    that snapped onto a wrong surface, or a part of a mover that step 4 took for static, follows the rest of
    its object). Then a two-way point-to-point ICP (:class:`evaluation.baselines.icp.ICPConfig` ``two_way``)
@@ -131,7 +133,10 @@ class RigidPolishConfig:
     object_max_extent: metres; a cluster longer than this along any axis is a wall or a row of things.
     object_whole_extent: metres; a cluster wholly inside frame 1's own view (every point at least
         ``cluster_radius`` from its azimuth edges and its farthest depth, :func:`core.clusters.view_interior`)
-        is an object up to this long: both its ends are seen, so its length is its own, not the view's.
+        is an object up to this long: both its ends are seen, so its length is its own, not the view's. 12 m: a
+        lorry or a bus (KITTI's Van, Truck and Tram classes outgrow ``object_max_extent``); an oncoming van in
+        a real stereo scene was no object at 6 m (docs/learned-flow.md, thirty-third round). 0 (or
+        ``object_max_extent``) = the extent rule alone, as before that round.
     object_min_link: metres; a cluster that is no object is split again at half the link radius, and so on down
         to this radius; its parts that lie wholly inside the view and are no longer than ``object_whole_extent``
         are objects (:func:`core.clusters.object_clusters` ``min_link_m``): things that touch in a dense cloud
@@ -181,7 +186,7 @@ class RigidPolishConfig:
     rigid_objects: bool = True
     object_max_extent: float = 6.0
     object_max_share: float = 1.0
-    object_whole_extent: float = 6.0
+    object_whole_extent: float = 12.0
     object_min_link: float = 0.8
     object_margin: float = 0.4
     object_search: float = 2.5
@@ -207,6 +212,8 @@ class RigidPolishConfig:
                              "object_search_min_points >= 0")
         if not (self.object_max_extent > 0 and 0 < self.object_max_share <= 1 and 0 <= self.object_margin < 1):
             raise ValueError("need object_max_extent > 0, 0 < object_max_share <= 1 and 0 <= object_margin < 1")
+        if not (self.object_whole_extent >= 0 and self.object_min_link > 0):
+            raise ValueError("need object_whole_extent >= 0 and object_min_link > 0")
         if not (self.max_distance > 0 and self.kernel_scale_min > 0 and self.static_scale_min > 0
                 and self.sigma > 0 and self.mad_factor >= 0):
             raise ValueError("max_distance, kernel_scale_min, static_scale_min and sigma must be > 0, "
@@ -411,12 +418,12 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
     :func:`_explained`). ``T`` (4, 4): the polished camera motion; ``landed`` (N,): whether each point moved by
     ``T`` lies within ``static_scale_min`` of a pc2 point (step 4's test, reused by step 6b); ``view``: pc2's
     field of view for the scores, or None (:func:`_in_view`)."""
+    whole_extent = cfg.object_whole_extent or cfg.object_max_extent  # 0: the extent rule alone
     whole = None
-    if cfg.object_whole_extent > cfg.object_max_extent or cfg.object_min_link < cfg.cluster_radius:
+    if whole_extent > cfg.object_max_extent or cfg.object_min_link < cfg.cluster_radius:
         whole = view_interior(p1, cfg.cluster_radius)
     objects = object_clusters(p1, cfg.cluster_radius, cfg.cluster_min_points, cfg.object_max_extent,
-                              cfg.object_max_share, whole, cfg.object_whole_extent,
-                              min(cfg.object_min_link, cfg.cluster_radius))
+                              cfg.object_max_share, whole, whole_extent, min(cfg.object_min_link, cfg.cluster_radius))
     if not objects:
         return
     icp_cfg = _cluster_icp(cfg, two_way=True)

@@ -354,6 +354,10 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     plain_score = _stacked(net, ["rigid-polish"], ("score_in_view",))[1]
     assert not plain_score.config.score_in_view and rows[2].config.score_in_view
     assert plain_score.name == "zero + rigid polish (all points scored)"
+    # --object-whole-extent off: 6 m for every cluster (object_whole_extent 0), named so
+    short = _stacked(net, ["rigid-polish"], ("object_whole_extent",))[1]
+    assert short.config.object_whole_extent == 0.0 and rows[2].config.object_whole_extent == 12.0
+    assert short.name == "zero + rigid polish (extent rule alone)"
 
 
 def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, tmp_path: Path) -> None:

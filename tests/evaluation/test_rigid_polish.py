@@ -170,13 +170,13 @@ def _street_with_lorry(seed: int, lorry_motion: np.ndarray):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_lorry_seen_whole_is_an_object_however_long(seed):
     """An oncoming 8 m lorry, which the method left wholly with the camera's motion, closes 1.4 m along its own
-    length. At ``object_max_extent`` 6 m it is no object (a wall, for all the extent can tell) and keeps the
-    camera's motion; wholly inside the view, with ``object_whole_extent`` 12 m, it is one, and step 6b finds
-    its motion. The wall, which runs out to the view's farthest depth, is no object at either setting."""
+    length. With the extent rule alone (6 m) it is no object (a wall, for all the extent can tell) and keeps the
+    camera's motion; wholly inside the view it may be 12 m long (``object_whole_extent``), so it is one, and
+    step 6b finds its motion. The wall, which runs out to the view's farthest depth, is no object at either setting."""
     pc1, pc2, truth, is_lorry = _street_with_lorry(seed, np.array([0.0, 0.0, -1.4]))
     flow = apply_transform(SMALL, pc1) - pc1 + np.random.default_rng(seed + 10).normal(0, 0.03, pc1.shape)
-    short, _, _ = polish_rigid(pc1, pc2, flow)
-    whole, _, _ = polish_rigid(pc1, pc2, flow, RigidPolishConfig(object_whole_extent=12.0))
+    short, _, _ = polish_rigid(pc1, pc2, flow, RigidPolishConfig(object_whole_extent=0.0))
+    whole, _, _ = polish_rigid(pc1, pc2, flow)  # object_whole_extent 12 m
     err_short, err_whole = (np.linalg.norm(f - truth, axis=1) for f in (short, whole))
     assert err_short[is_lorry].mean() > 1.0 and err_whole[is_lorry].mean() < 0.1, (err_short[is_lorry].mean(),
                                                                                   err_whole[is_lorry].mean())
@@ -355,7 +355,7 @@ def test_wrapper_names_its_row_and_delegates():
                                           ("cluster_min_fitness", 1.0), ("cluster_iterations", 0),
                                           ("object_max_extent", 0.0), ("object_max_share", 0.0), ("object_margin", 1.0),
                                           ("object_search", -1.0), ("object_search_peaks", 0), ("object_search_rise", -0.1),
-                                          ("object_search_min_points", -1),
+                                          ("object_search_min_points", -1), ("object_whole_extent", -1.0), ("object_min_link", 0.0),
                                           ("ego_check_margin", -0.1), ("ego_check_points", -1),
                                           ("ego_check_voxel", -1.0)])
 def test_config_refuses_impossible_settings(field, value):
