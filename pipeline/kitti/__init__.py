@@ -1,5 +1,6 @@
 """Readers and writers of KITTI's file formats (calibrations, poses, times, Velodyne scans, 8-bit
-images, 16-bit depth/disparity/flow PNGs) and of the KITTI-odometry folder layout.
+images, 16-bit depth/disparity/flow PNGs) and of the KITTI-odometry folder layout; KITTI Scene Flow 2015's
+disparity and flow maps turned into point pairs in HPLFlowNet's test layout (:mod:`pipeline.kitti.stereo_flow`).
 
 Every reader raises :class:`core.errors.InputError` naming the file on bad input.
 """
