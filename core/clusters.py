@@ -70,13 +70,15 @@ def object_clusters(points: np.ndarray, link_m: float = OBJECT_LINK_M, min_point
 
 def view_interior(points: np.ndarray, margin_m: float) -> np.ndarray:
     """(N,) bool: the ``points`` (N, 3; camera frame: x right, y down, z forward, metres) lying at least
-    ``margin_m`` inside the view that the cloud itself shows — nearer than its farthest depth by the margin, and
-    inside its azimuth range (the horizontal angle, read from the cloud's own extremes) by the angle the margin
-    subtends at the point's horizontal range. A cluster that reaches the edge may continue beyond it."""
+    ``margin_m`` inside the view that the cloud itself shows — nearer than its farthest depth and than its
+    farthest horizontal range by the margin (a camera-frustum split is cut in depth, a surround LiDAR sweep in
+    range), and inside its azimuth range (the horizontal angle, read from the cloud's own extremes) by the angle
+    the margin subtends at the point's horizontal range. A cluster that reaches the edge may continue beyond it."""
     p = np.asarray(points, dtype=np.float64)
     if not len(p):
         return np.zeros(0, dtype=bool)
     az = np.arctan2(p[:, 0], p[:, 2])
     rng = np.hypot(p[:, 0], p[:, 2])
     pad = np.arctan2(margin_m, np.maximum(rng, 1e-6))
-    return (p[:, 2] <= p[:, 2].max() - margin_m) & (az - pad >= az.min()) & (az + pad <= az.max())
+    return ((p[:, 2] <= p[:, 2].max() - margin_m) & (rng <= rng.max() - margin_m)
+            & (az - pad >= az.min()) & (az + pad <= az.max()))

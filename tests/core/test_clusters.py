@@ -71,3 +71,7 @@ def test_view_interior_keeps_a_margin_from_the_views_own_edges():
     # −43.5° is 0.8 m / 13.8 m = 3.3° from them at its range
     assert inner.tolist() == [True, False, False, False, False, False]
     assert view_interior(np.zeros((0, 3)), 0.8).shape == (0,)
+    # a surround sweep cut in range (40 m), not in depth: the points near the range limit are at its edge
+    ring = 40.0 * np.c_[np.sin(np.linspace(-3.1, 3.1, 63)), np.zeros(63), np.cos(np.linspace(-3.1, 3.1, 63))]
+    side = np.array([[39.5, 0.0, 0.0], [30.0, 0.0, 0.0]])  # 39.5 m and 30 m to the right
+    assert view_interior(np.concatenate([ring, side]), 0.8)[-2:].tolist() == [False, True]
