@@ -137,11 +137,12 @@ def write_hpl_scene(out: PathLike, pairs: StereoPairs, moving: np.ndarray | None
 
     ``moving`` (N,) bool, when given, is written as ``moving.npy`` (the reader's optional label).
 
-    The arrays go to a sibling temporary folder that is renamed when both are written, so an interrupted
-    run leaves no half-written scene (a left-over temporary folder is replaced next time).
+    The arrays go to a temporary folder beside the split (``out``'s parent), not inside it, that is renamed
+    when both are written: an interrupted run leaves no half-written scene where a reader looks for scenes (a
+    left-over temporary folder is replaced next time).
     """
     out = Path(out)
-    tmp = out.with_name(f".{out.name}.tmp")
+    tmp = temporary_folder(out)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
@@ -155,8 +156,16 @@ def write_hpl_scene(out: PathLike, pairs: StereoPairs, moving: np.ndarray | None
         np.save(tmp / "moving.npy", m, allow_pickle=False)
     if out.exists():
         shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     os.replace(tmp, out)
     return out
+
+
+def temporary_folder(out: Path) -> Path:
+    """Where :func:`write_hpl_scene` writes scene folder ``out`` before renaming it: beside the split folder
+    (``out``'s parent), so that no reader of the split sees it."""
+    split = out.absolute().parent
+    return split.with_name(f".{split.name}.{out.name}.tmp")
 
 
 def is_written(folder: Path) -> bool:
@@ -185,4 +194,4 @@ def build_split(root: PathLike, out: PathLike, scenes: range | list[int] = range
 
 
 __all__ = ["BASELINE_M", "SCENES", "StereoPairs", "back_project", "build_split", "is_written", "kitti_scene",
-           "stereo_pairs", "write_hpl_scene"]
+           "stereo_pairs", "temporary_folder", "write_hpl_scene"]

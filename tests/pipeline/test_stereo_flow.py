@@ -11,7 +11,8 @@ from core.errors import InputError
 from evaluation.readers import HPLFlowNetOptions, load_split
 from pipeline.cli import main as preprocess_main
 from pipeline.kitti.png16 import write_disparity_png, write_flow_png
-from pipeline.kitti.stereo_flow import BASELINE_M, back_project, build_split, stereo_pairs, write_hpl_scene
+from pipeline.kitti.stereo_flow import (BASELINE_M, back_project, build_split, stereo_pairs, temporary_folder,
+                                         write_hpl_scene)
 
 H, W = 60, 90
 F, CX, CY = 80.0, 44.5, 29.5
@@ -124,12 +125,15 @@ def test_finished_scenes_are_kept_and_a_half_written_one_is_redone(tmp_path):
     out = tmp_path / "split"
     build_split(tmp_path / "sf", out, range(1), log=lambda *_: None)
     first = (out / "000000" / "pc1.npy").stat().st_mtime_ns
-    (out / ".000001.tmp").mkdir()  # an interrupted write of scene 1
-    (out / ".000001.tmp" / "pc1.npy").write_bytes(b"partial")
+    tmp = temporary_folder(out / "000001")  # an interrupted write of scene 1: outside the split
+    assert tmp.parent == out.parent
+    tmp.mkdir()
+    (tmp / "pc1.npy").write_bytes(b"partial")
+    assert len(load_split(out)) == 1  # the reader sees the finished scene only
     written = build_split(tmp_path / "sf", out, range(2), log=lambda *_: None)
     assert [p.name for p in written] == ["000000", "000001"]
     assert (out / "000000" / "pc1.npy").stat().st_mtime_ns == first
-    assert not (out / ".000001.tmp").exists()
+    assert not tmp.exists()
     assert np.load(out / "000001" / "pc1.npy").shape == (H * W, 3)
 
 
