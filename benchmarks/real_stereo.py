@@ -39,7 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import InputError, run_cli
+from core.axes import FORMAT_AXES
 from evaluation.baselines.base import kabsch
+from evaluation.readers.hplflownet import HPLFlowNetOptions, kept_pairs
 from pipeline.kitti.calib import read_raw_cam_to_cam
 from pipeline.kitti.png16 import read_disparity_png, read_flow_png
 from pipeline.kitti.stereo_flow import StereoPairs, stereo_pairs, write_hpl_scene
@@ -101,10 +103,11 @@ def dominant_motion(pc1: np.ndarray, pc2: np.ndarray, rounds: int = 10, keep: fl
     return T
 
 
-def in_reader_cut(pairs: StereoPairs, ground_y: float = 1.4, max_depth: float = 35.0) -> np.ndarray:
-    """The pairs the ``hplflownet`` reader keeps: not ground in both clouds, z < ``max_depth`` in both."""
-    ground = (pairs.pc1[:, 1] > ground_y) & (pairs.pc2[:, 1] > ground_y)
-    return ~ground & (pairs.pc1[:, 2] < max_depth) & (pairs.pc2[:, 2] < max_depth)
+def in_reader_cut(pairs: StereoPairs) -> np.ndarray:
+    """The pairs the ``hplflownet`` reader keeps with its default options (not ground in both clouds, z < 35 m
+    in both; :func:`evaluation.readers.hplflownet.kept_pairs` on the stored axes)."""
+    axes = FORMAT_AXES["hplflownet"]
+    return kept_pairs(axes.from_camera(pairs.pc1), axes.from_camera(pairs.pc2), HPLFlowNetOptions())
 
 
 def build_split(cfg: RealStereoConfig) -> tuple[int, float]:

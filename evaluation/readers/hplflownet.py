@@ -101,13 +101,9 @@ def _entries(folder: Path, root: Path) -> list[Entry]:
     return [Entry(folder.name if folder == root else folder.relative_to(root).as_posix(), folder)]
 
 
-def _load(entry: Entry, opts: HPLFlowNetOptions) -> SceneFlowSample:
-    pc1 = np.load(entry.path / "pc1.npy").astype(np.float32)
-    pc2 = np.load(entry.path / "pc2.npy").astype(np.float32)
-    optional = {}
-    for key in ("moving", *LABELS):
-        path = entry.path / f"{key}.npy"
-        optional[key] = np.load(path) if path.is_file() else None
+def kept_pairs(pc1: np.ndarray, pc2: np.ndarray, opts: HPLFlowNetOptions) -> np.ndarray:
+    """(N,) bool: the point pairs (``pc1``, ``pc2``: (N, 3) in the stored axes) that the reader keeps under
+    ``opts`` — HPLFlowNet's ground rule, then its depth limit (module docstring)."""
     keep = np.ones(len(pc1), dtype=bool)
     if opts.remove_ground:
         g1 = pc1[:, 1] < -opts.ground_height
@@ -115,6 +111,17 @@ def _load(entry: Entry, opts: HPLFlowNetOptions) -> SceneFlowSample:
         keep &= ~((g1 & g2) if opts.ground_rule == "both" else (g1 | g2))
     if opts.max_depth is not None:
         keep &= (pc1[:, 2] < opts.max_depth) & (pc2[:, 2] < opts.max_depth)
+    return keep
+
+
+def _load(entry: Entry, opts: HPLFlowNetOptions) -> SceneFlowSample:
+    pc1 = np.load(entry.path / "pc1.npy").astype(np.float32)
+    pc2 = np.load(entry.path / "pc2.npy").astype(np.float32)
+    optional = {}
+    for key in ("moving", *LABELS):
+        path = entry.path / f"{key}.npy"
+        optional[key] = np.load(path) if path.is_file() else None
+    keep = kept_pairs(pc1, pc2, opts)
     pc1, pc2 = pc1[keep], pc2[keep]
     flow = pc2 - pc1
     moving, classes, instance = (None if optional[k] is None else optional[k][keep] for k in ("moving", *LABELS))
