@@ -91,22 +91,25 @@ class NetMethod:
         ckpt = load_checkpoint(path, kind="flow")
         self.model_name, self.config, net = restore_flow_net(ckpt, path)
         suffix = ""
-        if eval_anchor is not None and eval_anchor != getattr(self.config, "eval_anchor", None):
-            if not hasattr(self.config, "eval_anchor"):
-                raise ConfigError(f"{path}: the {self.model_name} net has no inference anchor (eval_anchor)")
+
+        def override(field: str, value, lacks: str, change) -> bool:
+            """Set the inference-only ``field`` to ``value`` by ``change(config)`` when it differs; True if it did.
+            A net without the field, or a setting its config refuses, is one error naming the checkpoint."""
+            if value is None or value == getattr(self.config, field, None):
+                return False
+            if not hasattr(self.config, field):
+                raise ConfigError(f"{path}: the {self.model_name} net has no {lacks}")
             try:
-                self.config = net.config = (replace(self.config, eval_anchor=True) if eval_anchor
-                                            else self.config.without_anchor())
+                self.config = net.config = change(self.config)
             except ConfigError as e:
                 raise ConfigError(f"{path}: {e}") from None
+            return True
+
+        if override("eval_anchor", eval_anchor, "inference anchor (eval_anchor)",
+                    lambda c: replace(c, eval_anchor=True) if eval_anchor else c.without_anchor()):
             suffix = ", anchored" if eval_anchor else ", not anchored"
-        if turn_scan is not None and turn_scan != getattr(self.config, "rigid_vote_yaw_deg", None):
-            if not hasattr(self.config, "rigid_vote_yaw_deg"):
-                raise ConfigError(f"{path}: the {self.model_name} net has no rigid vote to scan turns for")
-            try:
-                self.config = net.config = replace(self.config, rigid_vote_yaw_deg=float(turn_scan))
-            except ConfigError as e:
-                raise ConfigError(f"{path}: {e}") from None
+        if override("rigid_vote_yaw_deg", turn_scan, "rigid vote to scan turns for",
+                    lambda c: replace(c, rigid_vote_yaw_deg=float(turn_scan))):
             suffix += f", turn scan ±{turn_scan:g}°"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3

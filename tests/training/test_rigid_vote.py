@@ -334,7 +334,6 @@ def test_rigid_vote_dense_hands_the_vote_frame_2s_whole_input(monkeypatch):
         assert torch.allclose(origins.pop(), -pc1.mean(dim=1))  # the camera, in the net's centred frame
 
 
-
 def test_a_turn_that_fills_the_histogram_hardly_more_than_none_is_not_taken(monkeypatch):
     """``yaw_margin``: at no turn a 1° neighbour can fill the fullest cell a few per cent more by chance, and a
     start 1° off can leave the rounds off; a turn is taken only when it fills it clearly more."""
