@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +64,9 @@ class RealStereoConfig:
         pairs: scenes to write (disjoint random sets of the valid pixels).
         moving_m: metres from the dominant rigid motion beyond which a point is labelled moving.
         seed: seed of the pixel division.
+        rigid_background: give the points not labelled moving the dominant rigid motion as their truth (their
+            frame-2 point moved there), as KITTI's own ground truth gives the static background the camera's
+            motion; off = the estimate's flow everywhere.
         out: the split folder to create (must not exist).
     """
 
@@ -73,6 +76,7 @@ class RealStereoConfig:
     pairs: int = 8
     moving_m: float = 0.3
     seed: int = 0
+    rigid_background: bool = False
     out: str = ""
 
 
@@ -125,6 +129,9 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     T = dominant_motion(pairs.pc1[cut], pairs.pc2[cut])
     resid = np.linalg.norm(pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3] - pairs.pc2, axis=1)
     moving = resid > cfg.moving_m
+    if cfg.rigid_background:
+        rigid = (pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(pairs.pc2.dtype)
+        pairs = replace(pairs, pc2=np.where(moving[:, None], pairs.pc2, rigid))
     part = out.with_name(out.name + ".partial")
     shutil.rmtree(part, ignore_errors=True)
     order = np.random.default_rng(cfg.seed).permutation(len(pairs.pc1))

@@ -120,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "inference only; needs the anchor or the rigid vote): as trained, or a number (0 = off, 6 = "
                         "the demo preset's), so a net trained before the scan existed can use it; a change is named "
                         "in the row")
+    r.add_argument("--evidence-dense", default="as-trained", choices=("as-trained", "on", "off"),
+                   help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
+                        "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
+                        "change is named in the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -237,7 +241,9 @@ def _run(args) -> int:
     first = scenes[0]
     anchor = {"as-trained": None, "on": True, "off": False}[args.eval_anchor]
     turn_scan = None if args.turn_scan == "as-trained" else _degrees("--turn-scan", args.turn_scan)
-    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan) for c in args.checkpoint]
+    dense = {"as-trained": None, "on": True, "off": False}[args.evidence_dense]
+    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense)
+            for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

@@ -77,10 +77,13 @@ class NetMethod:
     the row (", anchored" / ", not anchored"). ``turn_scan`` (degrees) likewise overrides the inference-only
     ``model.rigid_vote_yaw_deg`` (the rigid vote's turn scan, docs/learned-flow.md, thirty-second round; 0 =
     off), so a net trained before the scan existed can be scored with it; a change is named (", turn scan ±6°").
+    ``evidence_dense`` (true / false) overrides the inference-only ``model.eval_evidence_dense`` (the anchor's
+    evidence test against frame 2's whole input; thirty-fourth round), named (", dense evidence" / ", L0 evidence").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
-                 level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None) -> None:
+                 level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
+                 evidence_dense: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -111,6 +114,9 @@ class NetMethod:
         if override("rigid_vote_yaw_deg", turn_scan, "rigid vote to scan turns for",
                     lambda c: replace(c, rigid_vote_yaw_deg=float(turn_scan))):
             suffix += f", turn scan ±{turn_scan:g}°"
+        if override("eval_evidence_dense", evidence_dense, "inference anchor's evidence test (eval_evidence_dense)",
+                    lambda c: replace(c, eval_evidence_dense=bool(evidence_dense))):
+            suffix += ", dense evidence" if evidence_dense else ", L0 evidence"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)

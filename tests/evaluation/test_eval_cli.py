@@ -377,3 +377,26 @@ def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, 
                  "--turn-scan", "6", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["ours (run, step 3, turn scan ±6°)"]
+
+
+def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
+    """``--evidence-dense`` / ``NetMethod(evidence_dense=…)``: an anchored net trained before the switch existed
+    scored with it (named, the config changed for inference only); a net whose anchor is forced off has no
+    evidence test to change: one error naming the checkpoint."""
+    from core.errors import ConfigError
+
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
+                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    plain, dense = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", evidence_dense=True)
+    assert not plain.net.config.eval_evidence_dense and dense.net.config.eval_evidence_dense
+    assert dense.name == "ours (run, step 3, dense evidence)" and plain.name == "ours (run, step 3)"
+    assert NetMethod(path, device="cpu", evidence_dense=False).name == plain.name  # no change, no name
+    with pytest.raises(ConfigError, match=f"{path}: .*eval_evidence_dense"):
+        NetMethod(path, device="cpu", eval_anchor=False, evidence_dense=True)
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--evidence-dense", "on", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, dense evidence)"]
+    assert np.isfinite(rows[0]["EPE3D"])

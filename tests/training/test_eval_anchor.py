@@ -113,3 +113,79 @@ def test_eval_gate_k_needs_the_anchor_and_goes_with_it():
                 or off.rigid_vote_yaw_deg)
     kept = dataclasses.replace(full, rigid_vote=True).without_anchor()  # a vote left: its options stay
     assert kept.rigid_vote_dense and kept.rigid_vote_far and kept.rigid_vote_yaw_deg == 6.0 and not kept.eval_gate_k
+
+
+def _grid_scene() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A 40 × 40 wall of points 0.1 m apart, 10 m ahead (camera axes); frame 2 holds the same points, a 0.6 m
+    patch of them (the mover) moved 1 m along x. Returns pc1, the whole frame 2, a sparse sample of it (every
+    fourth row and column), the mover mask and flows: static points at zero but every tenth, which strays onto
+    the sparse sample's point 0.6 m away; movers at their true 1 m."""
+    u, v = torch.meshgrid(torch.arange(40.0), torch.arange(40.0), indexing="ij")
+    pc1 = torch.stack([u.flatten() * 0.1, v.flatten() * 0.1, torch.full((1600,), 10.0)], -1)
+    mover = (u.flatten() < 6) & (v.flatten() < 6)
+    shift = torch.tensor([1.0, 0.0, 0.0])
+    pc2 = torch.where(mover[:, None], pc1 + shift, pc1)
+    sparse = pc2[(u.flatten() % 4 == 0) & (v.flatten() % 4 == 0)]
+    flow = torch.zeros_like(pc1)
+    flow[mover] = shift
+    stray = (~mover) & (torch.arange(1600) % 10 == 5)
+    flow[stray] = torch.tensor([0.0, 0.6, 0.0])
+    return pc1[None], pc2[None], sparse[None], mover, flow[None], stray
+
+
+def test_the_evidence_test_against_the_whole_frame_2_shuts_stray_static_flows_and_keeps_movers():
+    """``eval_evidence_dense``'s reason (thirty-fourth round): with the camera's motion held (here: none), a
+    static point's stray flow lands on a sample point, so against a sparse sample it counts as supported
+    and passes; against the whole frame 2 the point's own rigid target is a frame-2 point and the stray flow
+    is shut. A mover's true flow passes either way."""
+    from training.model.ego_motion import rigid_plus_residual
+
+    pc1, pc2, sparse, mover, flow, stray = _grid_scene()
+    hold = (torch.eye(3)[None], torch.zeros(1, 3))
+    gates = {}
+    for name, frame2 in (("sparse", sparse), ("whole", pc2)):
+        gates[name] = rigid_plus_residual(pc1, flow, 0.1, 4, 3.0, frame2=frame2, motion=hold, evidence=True).gate[0]
+    assert (gates["whole"][mover] > 0.99).all() and (gates["sparse"][mover] > 0.99).all()
+    assert (gates["whole"][stray] == 0).all()
+    passed = gates["sparse"][stray] > 0.99
+    assert passed.float().mean() > 0.2, passed.float().mean()  # the sparse sample cannot tell them apart
+
+
+def test_eval_evidence_dense_gives_the_finest_levels_evidence_test_the_whole_frame_2(monkeypatch):
+    """The switch's wiring: at inference the last call of the finest level (the hold) gets frame 2's whole
+    input, aligned by the vote like its L0 sample; without it, or in training steps, the L0 sample."""
+    import training.model.halflownet as halflownet
+
+    seen: list[int] = []
+    gaps: list[float] = []
+    real = halflownet.rigid_plus_residual
+
+    def spy(*args, **kwargs):
+        seen.append(args[8].shape[1])  # frame2, as the net passes it
+        gaps.append(torch.cdist(args[0], args[8]).min(-1).values.mean().item())  # its points to frame 2
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(halflownet, "rigid_plus_residual", spy)
+    pc1, pc2 = _pair()
+    torch.manual_seed(0)
+    dense = HALFlowNet(_cfg(eval_anchor=True, eval_evidence_dense=True))
+    sample = HALFlowNet(_cfg(eval_anchor=True))
+    sample.load_state_dict(dense.state_dict())
+    level0 = dense.config.level_points[0]
+    _flows(dense.eval(), pc1, pc2)
+    assert seen[-1] == pc2.shape[1] and set(seen[:-1]) <= set(dense.config.level_points)
+    assert gaps[-1] < 0.1, gaps[-1]  # aligned by the vote: frame 2 is frame 1 moved 1 m and turned 2°
+    seen.clear()
+    _flows(sample.eval(), pc1, pc2)
+    assert seen[-1] == level0
+    seen.clear()
+    _flows(dense.train(), pc1, pc2)
+    assert pc2.shape[1] not in seen
+
+
+def test_eval_evidence_dense_needs_an_evidence_test_and_goes_with_the_anchor():
+    with pytest.raises(ConfigError, match="eval_evidence_dense"):
+        _cfg(eval_evidence_dense=True)
+    assert _cfg(eval_anchor=True, eval_evidence_dense=True).without_anchor().eval_evidence_dense is False
+    kept = _cfg(eval_anchor=True, eval_evidence_dense=True, ego_gate_evidence=True).without_anchor()
+    assert kept.eval_evidence_dense is True  # an evidence test left: the option stays

@@ -354,7 +354,12 @@ class HALFlowNet(nn.Module):
             hold = (torch.eye(3, device=flow.device, dtype=flow.dtype).expand(B, 3, 3), flow.new_zeros(B, 3))
         elif cfg.ego_l0_hold:
             hold = before if cfg.ego_l0_hold_from == "l0" else motion
-        flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, p2.xyz[0], hold)
+        evidence2 = p2.xyz[0]
+        if cfg.ego_gate_evidence and cfg.eval_evidence_dense and not self.training:  # frame 2's whole input, aligned
+            evidence2 = x2 if shift is None else x2 - shift[:, None]
+            if turn is not None:
+                evidence2 = evidence2 @ turn
+        flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, evidence2, hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)

@@ -138,6 +138,14 @@ class HALFlowConfig:
         so a static point whose own flow snapped onto a nearer frame-2 sample stays at the vote's motion
         while a mover, a cluster that departs together, keeps its flow; training steps as set. 0 = the
         gate as trained. No gradient; a departure (twenty-second round).
+    eval_evidence_dense: with ``eval_anchor`` (or ``ego_gate_evidence``): at inference the evidence test at the
+        finest level (``ego_gate_evidence``: a departure is taken only where the point's own target lies nearer
+        to frame 2 than its rigid target does) reads frame 2's whole input, in the frame its L0 sample is in,
+        instead of that sample (``level_points[0]`` farthest points: one in four of a 2048-point cloud, one in
+        sixteen of an 8192-point one). Against a sparse sample a rigid target that is right still lies up to
+        half the sample's spacing from its nearest point, so a static point's stray flow that lands nearer one
+        passes; against the whole cloud the right rigid target lies on frame 2's surface. Inference only, no
+        gradient; false = the L0 sample (thirty-fourth round).
     """
 
     n_points: int = 8192
@@ -179,6 +187,7 @@ class HALFlowConfig:
     eval_norm_stats: str = "running"
     eval_anchor: bool = False
     eval_gate_k: int = 0
+    eval_evidence_dense: bool = False
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -221,6 +230,9 @@ class HALFlowConfig:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
             raise ConfigError("model.eval_gate_k sets the anchor's gate at inference: it needs model.eval_anchor")
+        if self.eval_evidence_dense and not (self.eval_anchor or self.ego_gate_evidence):
+            raise ConfigError("model.eval_evidence_dense changes the evidence test: it needs model.eval_anchor or "
+                              "model.ego_gate_evidence")
         if self.eval_anchor and not (self.translation_vote and self.ego_head and self.l0_cost_volume):
             raise ConfigError("model.eval_anchor turns on the rigid vote and the L0 hold at inference: it needs "
                               "model.translation_vote, model.ego_head and model.l0_cost_volume true")
@@ -264,10 +276,12 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, and ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` where no rigid
-        vote is left."""
+        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` where no rigid vote
+        is left and ``eval_evidence_dense`` where no evidence test is."""
         keep_vote = self.rigid_vote
-        return replace(self, eval_anchor=False, eval_gate_k=0, rigid_vote_dense=self.rigid_vote_dense and keep_vote,
+        return replace(self, eval_anchor=False, eval_gate_k=0,
+                       eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
+                       rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
                        rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0)
 
