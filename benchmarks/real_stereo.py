@@ -12,7 +12,9 @@ ahead, a parked row. It is the only split with movers that the generator did not
 
 The truth is a published monocular method's *estimate*, not KITTI's ground truth: its depth noise grows with
 range (a disparity of 11 px at 35 m), so the static background's flow is not exactly one rigid motion. Read
-its numbers as "agreement with a plausible real scene flow", not as accuracy. Scene 000139 has no line in
+its numbers as "agreement with a plausible real scene flow", not as accuracy; ``--rigid_background true`` gives
+the points not labelled moving the dominant rigid motion instead, as KITTI's own ground truth gives the static
+background the camera's motion (docs/learned-flow.md, thirty-fourth round). Scene 000139 has no line in
 KITTI's ``train_mapping.txt``, so its calibration is not known; ``P_rect_02`` is taken from a KITTI raw
 calibration file (``--calib``, default the 2011_09_26 one, f = 721.5 px, the date of most KITTI 2015 scenes).
 

@@ -49,3 +49,24 @@ def test_an_existing_folder_or_a_missing_png_is_one_line(shared_data: Path, tmp_
     assert main(["--scene", str(tmp_path), "--calib", str(shared_data / CALIB), "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "disp_0" in err[0] and not (tmp_path / "x").exists()
+
+
+def test_the_rigid_background_gives_the_static_points_one_rigid_motion_and_keeps_the_movers(shared_data: Path,
+                                                                                          tmp_path: Path):
+    """``--rigid_background``: the points labelled static take the dominant rigid motion as their truth (as
+    KITTI's ground truth gives the background the camera's motion); the movers and frame 1 are unchanged."""
+    build_split(_cfg(shared_data, tmp_path / "est", pairs=2))
+    build_split(_cfg(shared_data, tmp_path / "rigid", pairs=2, rigid_background=True))
+    est, rigid = load_split(str(tmp_path / "est"), "auto")[0], load_split(str(tmp_path / "rigid"), "auto")[0]
+    static = ~rigid.moving
+    T = dominant_motion(rigid.pc1[static], (rigid.pc1 + rigid.flow)[static])
+    resid = np.linalg.norm(rigid.pc1 @ T[:3, :3].T + T[:3, 3] - (rigid.pc1 + rigid.flow), axis=1)
+    assert resid[static].max() < 1e-3  # one rigid motion, to float32 rounding
+    keyed = {tuple(p): f for p, f in zip(est.pc1[est.moving], est.flow[est.moving])}
+    kept = [np.array_equal(keyed[tuple(p)], f) for p, f in zip(rigid.pc1[rigid.moving], rigid.flow[rigid.moving])
+            if tuple(p) in keyed]
+    assert len(kept) > 0.9 * rigid.moving.sum() and all(kept)  # (the reader's cut reads pc2: a few differ)
+    # and the estimate's own static flow is not one rigid motion (what the switch removes)
+    T0 = dominant_motion(est.pc1[~est.moving], (est.pc1 + est.flow)[~est.moving])
+    resid0 = np.linalg.norm(est.pc1 @ T0[:3, :3].T + T0[:3, 3] - (est.pc1 + est.flow), axis=1)
+    assert np.median(resid0[~est.moving]) > 0.02
