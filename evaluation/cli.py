@@ -111,6 +111,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
                         "their flow: '<net> + view pruning + rigid polish + refinement'")
+    r.add_argument("--refine-pairing", default="surface", choices=("surface", "points"),
+                   help="what frame 2 holds, for --refine (RefineConfig.for_start): 'surface' = another sampling of "
+                        "the same surfaces (LiDAR re-scans, clouds from frame 2's depth: the Chamfer term along the "
+                        "normals, a pull towards the camera's motion); 'points' = frame 1's own points moved, as in "
+                        "splits built from correspondences (HPLFlowNet's stereoKITTI, FlyingThings3D): point-to-point, "
+                        "no pull; the row is named '… + refinement (point pairs)'")
     r.add_argument("--eval-anchor", default="as-trained", choices=("as-trained", "on", "off"),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
@@ -158,16 +164,16 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = ()) -> list:
+def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing: str = "surface") -> list:
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
     polish + refinement'). ``polish_off``: :data:`POLISH_OFF` switches of the polish turned off, named so
-    ('<net> + rigid polish (no object step)')."""
-    from evaluation.methods import make_method
+    ('<net> + rigid polish (no object step)'); ``pairing``: the refinement's (``--refine-pairing``)."""
+    from evaluation.methods import make_method, refined
 
     rows = [net]
     for w in wrappers:
-        row = make_method(w, rows[-1])
+        row = refined(rows[-1], pairing=pairing) if w == "refine" else make_method(w, rows[-1])
         if w == "rigid-polish" and polish_off:
             row.config = dataclasses.replace(row.config, **{k: type(getattr(row.config, k))() for k in polish_off})
             row.name += f" ({', '.join(POLISH_OFF[k] for k in polish_off)})"
@@ -247,6 +253,8 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
+    if args.refine_pairing != "surface" and not args.refine:
+        raise ConfigError("--refine-pairing sets --refine's data term: add --refine")
     if (args.refine or args.view_prune or args.rigid_polish) and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
@@ -259,7 +267,7 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off) if any(m is n for n in nets) else [m])]
+                   for x in (_stacked(m, wrappers, off, args.refine_pairing) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device

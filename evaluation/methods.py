@@ -156,16 +156,21 @@ class NetMethod:
         return flow[0].cpu().numpy().astype(np.float32)
 
 
-def refined(method: FlowMethod, config: Any = None) -> FlowMethod:
+def refined(method: FlowMethod, config: Any = None, pairing: str = "surface") -> FlowMethod:
     """``method`` followed by label-free test-time refinement (:class:`evaluation.optimise.RefinedMethod`),
     named ``"<method name> + refinement"``: a separate row, the method's own row is left as it is. Without
-    ``config``, a method whose ego-motion is already registered (``registered_ego``, the rigid polish) is
-    refined with :meth:`RefineConfig.after_registration`, any other with the defaults."""
+    ``config``, :meth:`RefineConfig.for_start`: a method whose ego-motion is already registered
+    (``registered_ego``, the rigid polish) is refined with :meth:`RefineConfig.after_registration`, any other
+    with the defaults; ``pairing="points"`` (frame 2 holds frame 1's own points) drops the plane form and the
+    rigid pull, and the row is named ``"… + refinement (point pairs)"``."""
     from evaluation.optimise import RefineConfig, RefinedMethod
 
     if config is None:
-        config = RefineConfig.after_registration() if getattr(method, "registered_ego", False) else RefineConfig()
-    return RefinedMethod(method, config)
+        config = RefineConfig.for_start(bool(getattr(method, "registered_ego", False)), pairing)
+    row = RefinedMethod(method, config)
+    if pairing == "points":
+        row.name += " (point pairs)"
+    return row
 
 
 # ---------------------------------------------------------------------------------------------- registry

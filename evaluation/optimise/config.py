@@ -8,7 +8,7 @@ MLP prior, metres for free per-point flow).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from core.errors import ConfigError
@@ -114,6 +114,7 @@ class NSFPConfig(LoopConfig, ChamferConfig):
 
 
 PARAMETRISATIONS = ("free", "mlp", "rigid-mlp")
+PAIRINGS = ("surface", "points")  #: what frame 2 holds (RefineConfig.for_start)
 
 
 @dataclass
@@ -188,6 +189,22 @@ class RefineConfig(LoopConfig, ChamferConfig):
         in eight of nine cells); along the normals better than with it in all nine and than the polish alone
         in eight (the ninth 0.0002 m worse)."""
         return cls(**{"rigid_lr": 0.0, "truncate": 0.5, "plane": 1.0, **overrides})
+
+    @classmethod
+    def for_start(cls, registered: bool, pairing: str = "surface") -> "RefineConfig":
+        """The settings for a start flow and a kind of frame 2. ``registered``: the start's ego-motion is
+        already registered (the rigid polish: :meth:`after_registration`), else the defaults. ``pairing``
+        says what frame 2 holds: ``"surface"`` (default) another sampling of the same surfaces — a LiDAR
+        re-scan, a cloud from frame 2's own depth map — where a point's nearest frame-2 sample is not its
+        counterpart, so those settings stand; ``"points"`` frame 1's own points moved, as in the splits built
+        from correspondences (HPLFlowNet's stereoKITTI and FlyingThings3D, ``--protocol hplflownet``), where
+        the nearest sample often *is* the counterpart: the Chamfer term point-to-point (``plane`` 0) and no pull
+        towards one rigid motion (``rigid_weight`` 0) — NSFP's data term, which such splits reward
+        (docs/learned-flow.md, thirty-fourth round). The split's construction, not its flow, decides it."""
+        if pairing not in PAIRINGS:
+            raise ConfigError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
+        cfg = cls.after_registration() if registered else cls()
+        return replace(cfg, plane=0.0, rigid_weight=0.0) if pairing == "points" else cfg
 
     def validate(self) -> "RefineConfig":
         LoopConfig.validate(self)

@@ -400,3 +400,17 @@ def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(w
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["ours (run, step 3, dense evidence)"]
     assert np.isfinite(rows[0]["EPE3D"])
+
+
+def test_refine_pairing_points_names_the_row_and_needs_refine(world: Path, tmp_path: Path, capsys) -> None:
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt")
+    split = str(world / "sceneflow" / "flownet3d")
+    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine-pairing", "points",
+                 "--out", str(tmp_path / "x"), "--no-progress", "--max-scenes", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--refine-pairing" in err[0] and not (tmp_path / "x").exists()
+    out = tmp_path / "eval"
+    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine", "--refine-pairing",
+                 "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) + refinement (point pairs)"]

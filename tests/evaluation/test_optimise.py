@@ -4,6 +4,7 @@ robust rigid fit ignores a moving object."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from core.errors import ConfigError
 from evaluation.methods import make_baseline, refined
 from evaluation.optimise import (LoopConfig, NSFPConfig, NSFPMethod, RefineConfig, RefinedMethod, fit_nsfp,
                                  minimise, refine_flow, robust_rigid_fit)
@@ -206,3 +208,40 @@ def test_refinement_along_the_normals_keeps_a_flow_that_lies_on_frame_two_surfac
         errors[plane] = epe(refine_flow(pc1, pc2, gt, cfg).flow.numpy(), gt)
     assert RefineConfig.after_registration().plane == 1.0
     assert errors[1.0] < 0.5 * errors[0.0] and errors[1.0] < 0.05, errors
+
+
+def test_with_frame_one_s_own_points_in_frame_two_point_pairs_follow_what_one_rigid_motion_cannot() -> None:
+    """``pairing="points"`` (thirty-fourth round): frame 2 holds frame 1's own points, moved by the camera and
+    by a smooth non-rigid part (a depth estimate's bending, say), shuffled. From the registered camera motion,
+    the point-to-point term without the rigid pull walks each point onto its counterpart; the surface
+    settings (along the normals, pulled to one rigid motion) cannot follow the bending. The opposite case, a
+    re-scan, is the test above: there the surface settings win."""
+    rng = np.random.default_rng(3)
+    k = 200
+    pc1 = np.concatenate([np.c_[rng.uniform(-5, 6, k), np.full(k, 1.6), rng.uniform(4, 25, k)],
+                          np.c_[np.full(k, -5.0), rng.uniform(-3, 1.6, k), rng.uniform(4, 25, k)],
+                          np.c_[np.full(k, 6.0), rng.uniform(-3, 1.6, k), rng.uniform(4, 25, k)]])
+    R, t = rotation_y(0.02), np.array([0.05, 0.0, -0.8])
+    bend = np.c_[0.1 * np.sin(pc1[:, 2] / 4), 0.05 * np.sin(pc1[:, 0] / 3), 0.1 * np.cos(pc1[:, 0] / 3)]
+    moved = pc1 @ R.T + t + bend
+    gt = (moved - pc1).astype(np.float32)
+    pc2 = moved[rng.permutation(len(moved))].astype(np.float32)
+    start = (pc1 @ R.T + t - pc1).astype(np.float32)  # the camera's motion, registered exactly
+    errors = {}
+    for pairing in ("surface", "points"):
+        cfg = dataclasses.replace(RefineConfig.for_start(True, pairing), iterations=60, patience=0)
+        errors[pairing] = epe(refine_flow(pc1.astype(np.float32), pc2, start, cfg).flow.numpy(), gt)
+    assert errors["points"] < 0.5 * errors["surface"] and errors["points"] < 0.5 * epe(start, gt), errors
+
+
+def test_the_pairing_names_its_settings_and_its_row() -> None:
+    assert RefineConfig.for_start(True) == RefineConfig.after_registration()
+    assert RefineConfig.for_start(False) == RefineConfig()
+    pairs = RefineConfig.for_start(True, "points")
+    assert pairs == dataclasses.replace(RefineConfig.after_registration(), plane=0.0, rigid_weight=0.0)
+    assert RefineConfig.for_start(False, "points") == dataclasses.replace(RefineConfig(), rigid_weight=0.0)
+    with pytest.raises(ConfigError, match="pairing"):
+        RefineConfig.for_start(True, "lidar")
+    zero = make_baseline("zero")
+    assert refined(zero, pairing="points").name == "zero + refinement (point pairs)"
+    assert refined(zero).name == "zero + refinement" and refined(zero).config == RefineConfig()
