@@ -25,6 +25,7 @@ from pathlib import Path
 
 from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
 from evaluation.readers.flags import add_reader_flags, open_split
+from evaluation.readers.registry import REGISTRY
 from core.errors import ConfigError, run_cli
 
 
@@ -111,12 +112,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
                         "their flow: '<net> + view pruning + rigid polish + refinement'")
-    r.add_argument("--refine-pairing", default="surface", choices=("surface", "points"),
+    r.add_argument("--refine-pairing", default="auto", choices=("auto", "surface", "points"),
                    help="what frame 2 holds, for --refine (RefineConfig.for_start): 'surface' = another sampling of "
                         "the same surfaces (LiDAR re-scans, clouds from frame 2's depth: the Chamfer term along the "
                         "normals, a pull towards the camera's motion); 'points' = frame 1's own points moved, as in "
                         "splits built from correspondences (HPLFlowNet's stereoKITTI, FlyingThings3D): point-to-point, "
-                        "no pull; the row is named '… + refinement (point pairs)'")
+                        "no pull, the row named '… + refinement (point pairs)'; auto = 'points' for a format that "
+                        "stores frame 2 as frame 1's points (hplflownet), else 'surface'")
     r.add_argument("--eval-anchor", default="as-trained", choices=("as-trained", "on", "off"),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
@@ -253,8 +255,14 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
-    if args.refine_pairing != "surface" and not args.refine:
+    if args.refine_pairing != "auto" and not args.refine:
         raise ConfigError("--refine-pairing sets --refine's data term: add --refine")
+    pairing = args.refine_pairing
+    if pairing == "auto":
+        pairing = "points" if REGISTRY[split.fmt].frame2_holds_frame1 else "surface"
+        if args.refine and pairing == "points":
+            print(f"note: {args.split} is in the {split.fmt} layout, whose frame 2 is frame 1's points moved: the "
+                  "refinement uses point pairs (--refine-pairing surface for the re-scan settings)", file=sys.stderr)
     if (args.refine or args.view_prune or args.rigid_polish) and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
@@ -267,7 +275,7 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off, args.refine_pairing) if any(m is n for n in nets) else [m])]
+                   for x in (_stacked(m, wrappers, off, pairing) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device

@@ -44,6 +44,9 @@ class SceneFlowFormat:
         looks_for: what ``sniff`` looks for, in words (for the "nothing found" error).
         file_suffixes: suffixes of a single-scene file of this format (none: scenes are folders).
         fallback: sniffed only when no other format matched (its check walks the whole tree).
+        frame2_holds_frame1: frame 2 is frame 1's own points moved, by the format's construction (it stores no
+            flow: the flow is ``pc2 − pc1`` row by row), so the refinement's point pairs suit it
+            (``monoflow-evaluate --refine-pairing auto``); False = frame 2 may be another sampling.
     """
 
     name: str
@@ -56,6 +59,7 @@ class SceneFlowFormat:
     looks_for: str
     file_suffixes: tuple[str, ...] = ()
     fallback: bool = False
+    frame2_holds_frame1: bool = False
 
     @property
     def axes(self) -> Axes:

@@ -141,4 +141,5 @@ FORMAT = SceneFlowFormat(
     sniff=lambda folder: bool(_scene_dirs(folder)),
     looks_for="folders with pc1.npy/pc2.npy",
     fallback=True,
+    frame2_holds_frame1=True,
 )

@@ -414,3 +414,26 @@ def test_refine_pairing_points_names_the_row_and_needs_refine(world: Path, tmp_p
                  "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) + refinement (point pairs)"]
+
+
+@pytest.mark.parametrize("fmt, pairing, suffix", [("flownet3d", "auto", ""), ("hplflownet", "auto", " (point pairs)"),
+                                                   ("hplflownet", "surface", "")])
+def test_the_refinement_pairs_points_by_itself_where_the_layout_stores_frame_one_s_points(
+        world: Path, tmp_path: Path, fmt: str, pairing: str, suffix: str) -> None:
+    """``--refine-pairing auto`` (the default): the HPLFlowNet layout stores frame 2 as frame 1's points moved (its
+    flow is pc2 − pc1 row by row), so the refinement pairs points there; the FlowNet3D layout may hold a re-scan,
+    so it keeps the surface settings; ``surface`` forces them."""
+    from evaluation.readers.registry import REGISTRY
+
+    assert REGISTRY["hplflownet"].frame2_holds_frame1 and not REGISTRY["flownet3d"].frame2_holds_frame1
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt")
+    split = world / "sceneflow" / fmt
+    names = sorted(p.name for p in split.iterdir() if p.is_dir()) if fmt == "hplflownet" else []
+    mapping = tmp_path / "mapping.txt"
+    mapping.write_text("".join(f"{n}\n" for n in names) or "x\n")
+    out = tmp_path / "eval"
+    extra = ["--protocol", "hplflownet", "--mapping", str(mapping)] if fmt == "hplflownet" else []
+    assert main(["run", "--split", str(split), "--checkpoint", str(path), "--baselines", "", "--refine",
+                 "--refine-pairing", pairing, *extra, "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows][-1] == f"ours (run, step 3) + refinement{suffix}"
