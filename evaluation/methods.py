@@ -162,13 +162,13 @@ def refined(method: FlowMethod, config: Any = None, pairing: str = "surface") ->
     ``config``, :meth:`RefineConfig.for_start`: a method whose ego-motion is already registered
     (``registered_ego``, the rigid polish) is refined with :meth:`RefineConfig.after_registration`, any other
     with the defaults; ``pairing="points"`` (frame 2 holds frame 1's own points) drops the plane form and the
-    rigid pull, and the row is named ``"… + refinement (point pairs)"``."""
+    rigid pull, and the row is named ``"… + refinement (point pairs)"``. A given ``config`` is used as it is
+    (``pairing`` then only checked)."""
     from evaluation.optimise import RefineConfig, RefinedMethod
 
-    if config is None:
-        config = RefineConfig.for_start(bool(getattr(method, "registered_ego", False)), pairing)
-    row = RefinedMethod(method, config)
-    if pairing == "points":
+    chosen = RefineConfig.for_start(bool(getattr(method, "registered_ego", False)), pairing)
+    row = RefinedMethod(method, chosen if config is None else config)
+    if config is None and pairing == "points":
         row.name += " (point pairs)"
     return row
 
