@@ -29,6 +29,7 @@ import numpy as np
 
 from benchmarks.named_folders import named_folder
 from core.errors import ConfigError, run_cli
+from evaluation.cli import AS_TRAINED
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", action="append", default=[], required=True, type=named_folder,
                    help="NAME=FOLDER of a scene-flow test split with moving and instance labels")
     p.add_argument("--n-points", type=int, default=2048, help="points sampled per cloud")
-    p.add_argument("--eval-anchor", choices=("as-trained", "on", "off"), default="as-trained",
+    p.add_argument("--eval-anchor", choices=tuple(AS_TRAINED), default="as-trained",
                    help="the net's inference anchor (model.eval_anchor)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--by-heading", action="store_true",
@@ -111,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
 
         if args.threads:
             torch.set_num_threads(args.threads)
-        anchor = {"as-trained": None, "on": True, "off": False}[args.eval_anchor]
+        anchor = AS_TRAINED[args.eval_anchor]
         method = NetMethod(args.checkpoint, device="cpu", eval_anchor=anchor)
         print("| split | level | objects | points | own motion (m) | share taken (mean / median) | across (m) | "
               "movers' EPE3D (m) |\n|---|---|---|---|---|---|---|---|")

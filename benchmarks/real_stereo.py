@@ -129,11 +129,10 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     if cut.sum() < 64 * cfg.pairs:
         raise InputError(Path(cfg.scene), f"only {int(cut.sum())} pairs off the ground within 35 m")
     T = dominant_motion(pairs.pc1[cut], pairs.pc2[cut])
-    resid = np.linalg.norm(pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3] - pairs.pc2, axis=1)
-    moving = resid > cfg.moving_m
+    rigid = pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3]  # every pc1 point moved by the dominant motion
+    moving = np.linalg.norm(rigid - pairs.pc2, axis=1) > cfg.moving_m
     if cfg.rigid_background:
-        rigid = (pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(pairs.pc2.dtype)
-        pairs = replace(pairs, pc2=np.where(moving[:, None], pairs.pc2, rigid))
+        pairs = replace(pairs, pc2=np.where(moving[:, None], pairs.pc2, rigid.astype(pairs.pc2.dtype)))
     part = out.with_name(out.name + ".partial")
     shutil.rmtree(part, ignore_errors=True)
     order = np.random.default_rng(cfg.seed).permutation(len(pairs.pc1))

@@ -40,6 +40,9 @@ def _degrees(flag: str, text: str) -> float:
         raise ConfigError(f"{flag} must be 'as-trained' or a number of degrees, got {text!r}") from None
 
 
+AS_TRAINED = {"as-trained": None, "on": True, "off": False}
+"""An inference-only switch forced on or off for each checkpoint, or left as it trained (None: NetMethod's default)."""
+
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
               "score_in_view": "all points scored", "ego_check": "no ego check",
               "object_whole_extent": "extent rule alone"}
@@ -119,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "splits built from correspondences (HPLFlowNet's stereoKITTI, FlyingThings3D): point-to-point, "
                         "no pull, the row named '… + refinement (point pairs)'; auto = 'points' for a format that "
                         "stores frame 2 as frame 1's points (hplflownet), else 'surface'")
-    r.add_argument("--eval-anchor", default="as-trained", choices=("as-trained", "on", "off"),
+    r.add_argument("--eval-anchor", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
                         "net can be scored both ways; a forced setting that differs is named in the row")
@@ -128,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "inference only; needs the anchor or the rigid vote): as trained, or a number (0 = off, 6 = "
                         "the demo preset's), so a net trained before the scan existed can use it; a change is named "
                         "in the row")
-    r.add_argument("--evidence-dense", default="as-trained", choices=("as-trained", "on", "off"),
+    r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
                         "change is named in the row")
@@ -247,9 +250,9 @@ def _run(args) -> int:
         split = dataclasses.replace(split, entries=[e for e in split.entries if e.name in keep])
     scenes = split
     first = scenes[0]
-    anchor = {"as-trained": None, "on": True, "off": False}[args.eval_anchor]
+    anchor = AS_TRAINED[args.eval_anchor]
     turn_scan = None if args.turn_scan == "as-trained" else _degrees("--turn-scan", args.turn_scan)
-    dense = {"as-trained": None, "on": True, "off": False}[args.evidence_dense]
+    dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense)
             for c in args.checkpoint]
     for n in nets:
