@@ -121,7 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "normals, a pull towards the camera's motion); 'points' = frame 1's own points moved, as in "
                         "splits built from correspondences (HPLFlowNet's stereoKITTI, FlyingThings3D): point-to-point, "
                         "no pull, the row named '… + refinement (point pairs)'; auto = 'points' for a format that "
-                        "stores frame 2 as frame 1's points (hplflownet), else 'surface'")
+                        "stores frame 2 as frame 1's points (hplflownet) or a split whose stored flow carries frame "
+                        "1's points onto frame 2's points (evaluation.pairing: written from correspondences, as "
+                        "FlowNet3D's kitti_rm_ground), else 'surface'")
     r.add_argument("--eval-anchor", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
@@ -222,6 +224,7 @@ def _run(args) -> int:
         from evaluation.plots import _matplotlib
 
         _matplotlib()  # a missing optional extra is reported before any work
+    from evaluation.pairing import choose_pairing
     from evaluation.scenes import check_not_trained_on, mapped_scenes, select_scenes
 
     seeds = _ints(args.seeds, "--seeds")
@@ -261,11 +264,12 @@ def _run(args) -> int:
     if args.refine_pairing != "auto" and not args.refine:
         raise ConfigError("--refine-pairing sets --refine's data term: add --refine")
     pairing = args.refine_pairing
-    if pairing == "auto":
-        pairing = "points" if REGISTRY[split.fmt].frame2_holds_frame1 else "surface"
-        if args.refine and pairing == "points":
-            print(f"note: {args.split} is in the {split.fmt} layout, whose frame 2 is frame 1's points moved: the "
-                  "refinement uses point pairs (--refine-pairing surface for the re-scan settings)", file=sys.stderr)
+    if pairing == "auto" and args.refine:  # read the split's construction only where the refinement runs
+        choice = choose_pairing(scenes, split.fmt, REGISTRY[split.fmt].frame2_holds_frame1)
+        pairing = choice.pairing
+        if pairing == "points":
+            print(f"note: {args.split}: {choice.reason}; the refinement uses point pairs (--refine-pairing surface "
+                  "for the re-scan settings)", file=sys.stderr)
     if (args.refine or args.view_prune or args.rigid_polish) and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}

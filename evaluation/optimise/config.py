@@ -197,7 +197,7 @@ class RefineConfig(LoopConfig, ChamferConfig):
         says what frame 2 holds: ``"surface"`` (default) another sampling of the same surfaces — a LiDAR
         re-scan, a cloud from frame 2's own depth map — where a point's nearest frame-2 sample is not its
         counterpart, so those settings stand; ``"points"`` frame 1's own points moved, as in the splits built
-        from correspondences (HPLFlowNet's stereoKITTI and FlyingThings3D, ``--protocol hplflownet``), where
+        from correspondences (HPLFlowNet's stereoKITTI and FlyingThings3D, FlowNet3D's ``kitti_rm_ground``), where
         the nearest sample often *is* the counterpart: the Chamfer term point-to-point (``plane`` 0) and no pull
         towards one rigid motion (``rigid_weight`` 0) — NSFP's data term, which such splits reward
         (docs/learned-flow.md, thirty-fourth round). The split's construction, not its flow, decides it."""

@@ -4,8 +4,11 @@ One ``*.npz`` per scene with ``pos1`` (N, 3), ``pos2`` (M, 3), ``gt`` (N, 3) in 
 (:data:`core.axes.LIDAR`: x forward, y left, z up; camera = ``(−y, −z, x)``). Optional arrays read
 when present: ``moving`` (N,) (our synthetic generator writes it), ``classes`` / ``instance`` (N,)
 integers (class 0 = background; our generator writes them), ``color1`` (N, 3) and ``color2`` (M, 3) in
-[0, 1]. ``pos2`` is the next scan, not ``pos1 + gt``. Optional depth limit (FLOT's protocol keeps camera
-z < 35 m in each cloud separately); off by default.
+[0, 1]. ``pos2`` need not be ``pos1 + gt``: the synthetic world writes the next scan (a re-scan), while
+FlowNet3D's KITTI files come from KITTI's correspondences (the first rows of a file quoted in the FlowNet3D
+repository's issue 21 satisfy ``pos2 = pos1 + gt`` to every printed digit, its last rows do not);
+:mod:`evaluation.pairing` tells the two kinds apart. Optional depth limit (FLOT's protocol keeps camera z < 35 m
+in each cloud separately); off by default.
 """
 
 from __future__ import annotations

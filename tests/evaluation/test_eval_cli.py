@@ -437,3 +437,29 @@ def test_the_refinement_pairs_points_by_itself_where_the_layout_stores_frame_one
                  "--refine-pairing", pairing, *extra, "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows][-1] == f"ours (run, step 3) + refinement{suffix}"
+
+
+def test_the_refinement_pairs_points_where_a_flownet3d_split_was_written_from_correspondences(
+        world: Path, tmp_path: Path, capsys) -> None:
+    """The FlowNet3D layout holds both kinds (the synthetic world's re-scans, FlowNet3D's KITTI written from
+    correspondences): ``auto`` reads which from the files (evaluation.pairing) — the world's own split keeps the
+    surface settings (previous test), the same scenes rewritten with ``pos2`` = ``pos1 + gt`` shuffled and
+    thinned pair points, saying why in one note."""
+    split = tmp_path / "moved"
+    split.mkdir()
+    rng = np.random.default_rng(0)
+    for f in sorted((world / "sceneflow" / "flownet3d").glob("*.npz")):
+        with np.load(f) as d:
+            arrays = {k: d[k] for k in d.files}
+        moved = (arrays["pos1"] + arrays["gt"])[rng.permutation(len(arrays["pos1"]))]
+        arrays["pos2"] = moved[: int(0.8 * len(moved))]
+        arrays.pop("color2", None)
+        np.savez(split / f.name, **arrays)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt")
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(split), "--checkpoint", str(path), "--baselines", "", "--refine",
+                 "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows][-1] == "ours (run, step 3) + refinement (point pairs)"
+    notes = [line for line in capsys.readouterr().err.splitlines() if "point pairs" in line]
+    assert len(notes) == 1 and "80% of frame 1's points land" in notes[0]
