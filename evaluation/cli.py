@@ -23,6 +23,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+from evaluation.pairing import PAIRINGS
 from evaluation.protocols import ALIASES, DEFAULT_POINTS, PROTOCOLS, ProtocolConfig
 from evaluation.readers.flags import add_reader_flags, open_split
 from evaluation.readers.registry import REGISTRY
@@ -115,15 +116,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also score each checkpoint followed by label-free test-time refinement, as its own row "
                         "'<net> + refinement' (evaluation/optimise); with --view-prune / --rigid-polish it refines "
                         "their flow: '<net> + view pruning + rigid polish + refinement'")
-    r.add_argument("--refine-pairing", default="auto", choices=("auto", "surface", "points"),
-                   help="what frame 2 holds, for --refine (RefineConfig.for_start): 'surface' = another sampling of "
-                        "the same surfaces (LiDAR re-scans, clouds from frame 2's depth: the Chamfer term along the "
-                        "normals, a pull towards the camera's motion); 'points' = frame 1's own points moved, as in "
-                        "splits built from correspondences (HPLFlowNet's stereoKITTI, FlyingThings3D): point-to-point, "
-                        "no pull, the row named '… + refinement (point pairs)'; auto = 'points' for a format that "
-                        "stores frame 2 as frame 1's points (hplflownet) or a split whose stored flow carries frame "
-                        "1's points onto frame 2's points (evaluation.pairing: written from correspondences, as "
-                        "FlowNet3D's kitti_rm_ground), else 'surface'")
+    r.add_argument("--pairing", "--refine-pairing", dest="pairing", default="auto", choices=("auto", *PAIRINGS),
+                   help="what frame 2 holds, for --view-prune, --rigid-polish and --refine: 'surface' = another "
+                        "sampling of the same surfaces (LiDAR re-scans, clouds from frame 2's depth); 'points' = frame "
+                        "1's own points moved, as in splits built from correspondences (HPLFlowNet's stereoKITTI, "
+                        "FlyingThings3D, FlowNet3D's kitti_rm_ground): no point left the view, so the view pruning is "
+                        "left out; the polish refuses a registration that moves frame 1 away from frame 2's points "
+                        "(RigidPolishConfig.for_pairing); the refinement pairs points (RefineConfig.for_start); those "
+                        "rows are named '(point pairs)'. auto = 'points' for a format that stores frame 2 as frame "
+                        "1's points (hplflownet) or a split whose stored flow carries frame 1's points onto frame 2's "
+                        "points (evaluation.pairing), else 'surface'. --refine-pairing is its former name")
     r.add_argument("--eval-anchor", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
                         "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
@@ -175,15 +177,22 @@ def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
     polish + refinement'). ``polish_off``: :data:`POLISH_OFF` switches of the polish turned off, named so
-    ('<net> + rigid polish (no object step)'); ``pairing``: the refinement's (``--refine-pairing``)."""
+    ('<net> + rigid polish (no object step)'); ``pairing``: what frame 2 holds (``--pairing``), for the polish
+    (:meth:`RigidPolishConfig.for_pairing`) and the refinement (:func:`evaluation.methods.refined`), each row then
+    named '(point pairs)' where it differs."""
     from evaluation.methods import make_method, refined
+    from evaluation.rigid_polish import RigidPolishConfig
 
     rows = [net]
     for w in wrappers:
         row = refined(rows[-1], pairing=pairing) if w == "refine" else make_method(w, rows[-1])
-        if w == "rigid-polish" and polish_off:
-            row.config = dataclasses.replace(row.config, **{k: type(getattr(row.config, k))() for k in polish_off})
-            row.name += f" ({', '.join(POLISH_OFF[k] for k in polish_off)})"
+        if w == "rigid-polish":
+            row.config = RigidPolishConfig.for_pairing(pairing)
+            notes = [POLISH_OFF[k] for k in polish_off] + (["point pairs"] if pairing == "points" else [])
+            if polish_off:
+                row.config = dataclasses.replace(row.config, **{k: type(getattr(row.config, k))() for k in polish_off})
+            if notes:
+                row.name += f" ({', '.join(notes)})"
         rows.append(row)
     return rows
 
@@ -261,15 +270,19 @@ def _run(args) -> int:
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))
-    if args.refine_pairing != "auto" and not args.refine:
-        raise ConfigError("--refine-pairing sets --refine's data term: add --refine")
-    pairing = args.refine_pairing
-    if pairing == "auto" and args.refine:  # read the split's construction only where the refinement runs
+    stacking = args.view_prune or args.rigid_polish or args.refine
+    if args.pairing != "auto" and not stacking:
+        raise ConfigError("--pairing sets how --view-prune, --rigid-polish and --refine read frame 2: add one of them")
+    pairing = args.pairing
+    if pairing == "auto" and stacking:  # read the split's construction only where a wrapper uses it
         choice = choose_pairing(scenes, split.fmt, REGISTRY[split.fmt].frame2_holds_frame1)
         pairing = choice.pairing
         if pairing == "points":
-            print(f"note: {args.split}: {choice.reason}; the refinement uses point pairs (--refine-pairing surface "
-                  "for the re-scan settings)", file=sys.stderr)
+            print(f"note: {args.split}: {choice.reason}; the stack pairs points (--pairing surface for the re-scan "
+                  "settings)", file=sys.stderr)
+    if pairing == "points" and args.view_prune:
+        print("note: --view-prune is left out: frame 2 holds frame 1's own points, so none of them left the view",
+              file=sys.stderr)
     if (args.refine or args.view_prune or args.rigid_polish) and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
@@ -277,8 +290,8 @@ def _run(args) -> int:
     if not methods:
         raise ConfigError("nothing to evaluate: give --checkpoint and/or --baselines")
     _unique_names(methods)
-    wrappers = [w for w, on in (("view-prune", args.view_prune), ("rigid-polish", args.rigid_polish),
-                                ("refine", args.refine)) if on]
+    wrappers = [w for w, on in (("view-prune", args.view_prune and pairing != "points"),
+                                ("rigid-polish", args.rigid_polish), ("refine", args.refine)) if on]
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods

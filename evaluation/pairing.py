@@ -27,6 +27,7 @@ import numpy as np
 
 from evaluation.sample import SceneFlowSample
 
+PAIRINGS = ("surface", "points")  #: what frame 2 holds, in the words of ``--pairing``
 EXACT_M = 1e-3  #: a moved point "lands on" a frame-2 point within this distance (m; float32 keeps 1e-5 at 100 m)
 MIN_SHARE = 0.1  #: median share of landed points from which a split counts as written from correspondences
 CHECKED_SCENES = 8  #: scenes read for the check, spread evenly over the split

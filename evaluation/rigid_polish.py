@@ -33,6 +33,10 @@ usable around any method, combines the two:
    share (as in step 1b) below ``(1 − ego_check_margin)`` times step 1b's: on a street whose walls run along
    the camera's path, the point-to-plane pairs hardly hold the motion along it, and a registration can slide
    with the traffic ahead (docs/learned-flow.md, twenty-fifth round);
+3c. (``pairs_check``, splits whose frame 2 holds frame 1's own points) keeps ``T₀`` when the registered motion
+   leaves frame 1 farther from pc2 — the mean nearest distance, truncated at ``pairs_check`` metres. On noisy
+   stereo clouds the point-to-plane registration has a floor of a few centimetres, above a good method's own
+   motion (docs/learned-flow.md, thirty-fifth round);
 4. a frame-1 point takes the rigid flow ``T p − p`` when both say it moves with the camera: the method
    (it was kept in step 2) and the geometry (its polished target ``T p`` lands on pc2: the nearest pc2
    point is closer than ``max(static_scale_min, mad_factor · 1.4826 · median distance)``). The others —
@@ -103,6 +107,7 @@ from scipy.spatial import cKDTree
 from core.clusters import object_clusters, radius_components, view_interior
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
+from evaluation.pairing import PAIRINGS
 from evaluation.view_prune import ViewExtent, ViewPruneConfig, rigid_fit
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
@@ -168,7 +173,13 @@ class RigidPolishConfig:
         counts once, its points sharing its weight. 0 = each point weighted by its range from camera 1 (the
         twenty-fifth round's weights).
     ego_check_points: the vote and the trimmed rounds run on this many farthest-point samples of each cloud
-        (0 = every point)."""
+        (0 = every point).
+    pairs_check: metres; for a split whose frame 2 holds frame 1's own points moved (``--pairing points``,
+        :mod:`evaluation.pairing`), step 3c: the registration is refused when it leaves frame 1 farther from
+        pc2 than step 2's motion did — the mean distance from each moved frame-1 point to its nearest pc2
+        point, truncated at this many metres. Where frame 2 holds the points' counterparts that distance is
+        near zero at the right motion for the points it kept, so it tells centimetres apart, which a re-scan's
+        sampling offsets hide (docs/learned-flow.md, thirty-fifth round). 0 = off (re-scans: the default)."""
 
     iterations: int = 20
     max_distance: float = 1.0
@@ -198,14 +209,27 @@ class RigidPolishConfig:
     ego_check_margin: float = 0.05
     ego_check_points: int = 512
     ego_check_voxel: float = 1.0
+    pairs_check: float = 0.0
+
+    @classmethod
+    def for_pairing(cls, pairing: str = "surface") -> "RigidPolishConfig":
+        """The settings for what frame 2 holds (:mod:`evaluation.pairing`, ``--pairing``): ``"surface"`` (a
+        re-scan) the defaults; ``"points"`` (frame 1's own points moved) adds step 3c with ``pairs_check`` 0.1 m
+        — the nearest distance of a point whose counterpart frame 2 holds is its motion's error, and 0.1 m
+        keeps a point whose counterpart was not sampled from outweighing the centimetres it compares."""
+        if pairing not in PAIRINGS:
+            raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
+        return cls(pairs_check=0.1) if pairing == "points" else cls()
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
             raise ValueError("iterations, fit_iterations and cluster_iterations must be >= 1, min_points >= 6")
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
-        if self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0:
-            raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0 and ego_check_voxel >= 0")
+        if (self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0
+                or not self.pairs_check >= 0):
+            raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0, ego_check_voxel >= 0 and "
+                             "pairs_check >= 0")
         if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0
                 and self.object_search_min_points >= 0):
             raise ValueError("need object_search >= 0, object_search_peaks >= 1, object_search_rise >= 0 and "
@@ -218,6 +242,12 @@ class RigidPolishConfig:
                 and self.sigma > 0 and self.mad_factor >= 0):
             raise ValueError("max_distance, kernel_scale_min, static_scale_min and sigma must be > 0, "
                              "mad_factor >= 0")
+
+
+def _mean_nearest(tree2: cKDTree, points: np.ndarray, truncate: float) -> float:
+    """Mean distance (metres) from each of ``points`` to its nearest point of ``tree2``'s cloud, each
+    truncated at ``truncate``."""
+    return float(np.minimum(tree2.query(points, distance_upper_bound=truncate)[0], truncate).mean())
 
 
 def _agreeing(residual: np.ndarray, cfg: RigidPolishConfig) -> np.ndarray:
@@ -252,6 +282,9 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     if checked is not None and (_explained_share(p1, weights, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):
         T = checked[0]  # step 3b: the registration slid away from what explains the scene
+    if cfg.pairs_check and (_mean_nearest(tree2, apply_transform(T, p1), cfg.pairs_check)
+                            > _mean_nearest(tree2, apply_transform(init, p1), cfg.pairs_check)):
+        T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)

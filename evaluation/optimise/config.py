@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from core.errors import ConfigError
+from evaluation.pairing import PAIRINGS
 
 DEVICES = ("auto", "cpu", "cuda")
 
@@ -114,7 +115,6 @@ class NSFPConfig(LoopConfig, ChamferConfig):
 
 
 PARAMETRISATIONS = ("free", "mlp", "rigid-mlp")
-PAIRINGS = ("surface", "points")  #: what frame 2 holds (RefineConfig.for_start)
 
 
 @dataclass

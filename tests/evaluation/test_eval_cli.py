@@ -408,7 +408,7 @@ def test_refine_pairing_points_names_the_row_and_needs_refine(world: Path, tmp_p
     assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine-pairing", "points",
                  "--out", str(tmp_path / "x"), "--no-progress", "--max-scenes", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--refine-pairing" in err[0] and not (tmp_path / "x").exists()
+    assert len(err) == 1 and "--pairing" in err[0] and not (tmp_path / "x").exists()
     out = tmp_path / "eval"
     assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine", "--refine-pairing",
                  "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0

@@ -333,6 +333,57 @@ def test_registration_that_slides_away_is_not_taken(monkeypatch):
     assert rot_err < 0.2 and t_err < 0.05, (rot_err, t_err)
 
 
+def _drifting_icp(monkeypatch, drift_m: float) -> None:
+    """Make step 3's point-to-plane registration end ``drift_m`` metres further forward than it would."""
+    import evaluation.rigid_polish as rp
+
+    real_icp = rp.icp
+
+    def drifting(src, dst, cfg, init=None):
+        out = real_icp(src, dst, cfg, init=init)
+        if cfg.method == "point_to_plane":
+            out.transform[2, 3] += drift_m
+        return out
+
+    monkeypatch.setattr(rp, "icp", drifting)
+
+
+@pytest.mark.parametrize("drift", [0.03, 0.3])
+def test_on_point_pairs_a_registration_that_moves_frame_one_off_its_points_is_refused(monkeypatch, drift):
+    """Step 3c (``pairs_check``, a split whose frame 2 is frame 1's points moved): a method whose camera motion
+    is right keeps it when the registration drifts (3 cm, which step 3b's 0.3 m share cannot see, or 30 cm);
+    without the check the drift stands. Step 3b is off on both sides so that 3c alone decides."""
+    from dataclasses import replace
+
+    _drifting_icp(monkeypatch, drift)
+    pc1, _ = scene_pair(3, 3000, SMALL)
+    truth = (pc1 @ SMALL[:3, :3].T + SMALL[:3, 3] - pc1).astype(np.float32)
+    pc2 = (pc1 + truth)[np.random.default_rng(0).permutation(len(pc1))]  # frame 1's points moved, shuffled
+    alone = dict(objects=False, rigid_objects=False, ego_check=False)
+    _, T_off, _ = polish_rigid(pc1, pc2, truth, RigidPolishConfig(**alone))
+    flow, T_on, _ = polish_rigid(pc1, pc2, truth, replace(RigidPolishConfig.for_pairing("points"), **alone))
+    assert abs(transform_error(T_off, SMALL)[1] - drift) < 0.005
+    assert transform_error(T_on, SMALL)[1] < 1e-3
+    assert np.linalg.norm(flow - truth, axis=1).max() < 1e-3
+
+
+def test_on_point_pairs_a_registration_that_brings_frame_one_onto_its_points_stands():
+    """Step 3c keeps what step 3 is for: a rough camera motion (0.6°, 0.3 m off) is still registered."""
+    pc1, _, truth, is_car = _scene()
+    pc2 = (pc1 + truth)[np.random.default_rng(0).permutation(len(pc1))]
+    rough = _RoughNet(truth, is_car, pc1)
+    _, T, _ = polish_rigid(pc1, pc2, rough(pc1, pc2), RigidPolishConfig.for_pairing("points"))
+    rot_err, t_err = transform_error(T, SMALL)
+    assert rot_err < 0.05 and t_err < 0.01, (rot_err, t_err)
+
+
+def test_pairing_settings():
+    assert RigidPolishConfig.for_pairing("surface") == RigidPolishConfig()
+    assert RigidPolishConfig.for_pairing("points").pairs_check == 0.1
+    with pytest.raises(ValueError, match="pairing"):
+        RigidPolishConfig.for_pairing("auto")
+
+
 def test_too_few_points_agreeing_returns_the_method_flow():
     pc1, pc2, truth, _ = _scene()
     few = pc1[:20]
@@ -357,7 +408,7 @@ def test_wrapper_names_its_row_and_delegates():
                                           ("object_search", -1.0), ("object_search_peaks", 0), ("object_search_rise", -0.1),
                                           ("object_search_min_points", -1), ("object_whole_extent", -1.0), ("object_min_link", 0.0),
                                           ("ego_check_margin", -0.1), ("ego_check_points", -1),
-                                          ("ego_check_voxel", -1.0)])
+                                          ("ego_check_voxel", -1.0), ("pairs_check", -0.1)])
 def test_config_refuses_impossible_settings(field, value):
     with pytest.raises(ValueError):
         RigidPolishConfig(**{field: value})
