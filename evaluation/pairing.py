@@ -1,6 +1,8 @@
-"""What a split's frame 2 holds, for the refinement's data term (``monoflow-evaluate --refine-pairing auto``).
+"""What a split's frame 2 holds, for the label-free wrappers of a net (``monoflow-evaluate --pairing auto``).
 
-Two kinds of split ask for different refinements (:meth:`evaluation.optimise.RefineConfig.for_start`):
+Two kinds of split ask for different view pruning, rigid polish and refinement
+(``monoflow-evaluate run``'s stack; :meth:`evaluation.rigid_polish.RigidPolishConfig.for_pairing`,
+:meth:`evaluation.optimise.RefineConfig.for_start`):
 
 * ``"surface"``: frame 2 is another sampling of the same surfaces — a LiDAR re-scan, a cloud from frame 2's
   own depth map. A point's nearest frame-2 sample is not its counterpart.
@@ -14,7 +16,7 @@ in a split built from correspondences the stored flow carries frame 1's points e
 (share 1.0 on the stereo scene written by ``benchmarks/real_stereo.py``), while a re-scan has a point within a
 millimetre of a moved point only by chance (0.00–0.3 % on the synthetic worlds' LiDAR splits and the real
 re-scanned KITTI scan). This reads the split's labels once, for one answer per split about how the file was
-made; no method sees them, and ``--refine-pairing surface|points`` states the answer without reading them.
+made; no method sees them, and ``--pairing surface|points`` states the answer without reading them.
 Points in metres, camera frame (x right, y down, z forward).
 """
 

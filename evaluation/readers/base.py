@@ -46,7 +46,7 @@ class SceneFlowFormat:
         fallback: sniffed only when no other format matched (its check walks the whole tree).
         frame2_holds_frame1: frame 2 is frame 1's own points moved, by the format's construction (it stores no
             flow: the flow is ``pc2 − pc1`` row by row), so the refinement's point pairs suit it
-            (``monoflow-evaluate --refine-pairing auto``); False = frame 2 may be another sampling, and
+            (``monoflow-evaluate --pairing auto``); False = frame 2 may be another sampling, and
             :mod:`evaluation.pairing` reads from the files which it is.
     """
 

@@ -402,25 +402,34 @@ def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(w
     assert np.isfinite(rows[0]["EPE3D"])
 
 
-def test_refine_pairing_points_names_the_row_and_needs_refine(world: Path, tmp_path: Path, capsys) -> None:
+def test_pairing_points_names_the_rows_and_needs_a_wrapper(world: Path, tmp_path: Path, capsys) -> None:
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt")
     split = str(world / "sceneflow" / "flownet3d")
-    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine-pairing", "points",
+    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--pairing", "points",
                  "--out", str(tmp_path / "x"), "--no-progress", "--max-scenes", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--pairing" in err[0] and not (tmp_path / "x").exists()
     out = tmp_path / "eval"
-    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine", "--refine-pairing",
+    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine", "--pairing",
                  "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) + refinement (point pairs)"]
+    capsys.readouterr()
+    out = tmp_path / "stack"
+    assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--view-prune", "--rigid-polish",
+                 "--refine", "--pairing", "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == [  # no view pruning: frame 2 holds frame 1's points, none left the view
+        "ours (run, step 3)", "ours (run, step 3) + rigid polish (point pairs)",
+        "ours (run, step 3) + rigid polish (point pairs) + refinement (point pairs)"]
+    assert "--view-prune is left out" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("fmt, pairing, suffix", [("flownet3d", "auto", ""), ("hplflownet", "auto", " (point pairs)"),
                                                    ("hplflownet", "surface", "")])
 def test_the_refinement_pairs_points_by_itself_where_the_layout_stores_frame_one_s_points(
         world: Path, tmp_path: Path, fmt: str, pairing: str, suffix: str) -> None:
-    """``--refine-pairing auto`` (the default): the HPLFlowNet layout stores frame 2 as frame 1's points moved (its
+    """``--pairing auto`` (the default): the HPLFlowNet layout stores frame 2 as frame 1's points moved (its
     flow is pc2 − pc1 row by row), so the refinement pairs points there; the FlowNet3D layout may hold a re-scan,
     so it keeps the surface settings; ``surface`` forces them."""
     from evaluation.readers.registry import REGISTRY
@@ -434,7 +443,8 @@ def test_the_refinement_pairs_points_by_itself_where_the_layout_stores_frame_one
     out = tmp_path / "eval"
     extra = ["--protocol", "hplflownet", "--mapping", str(mapping)] if fmt == "hplflownet" else []
     assert main(["run", "--split", str(split), "--checkpoint", str(path), "--baselines", "", "--refine",
-                 "--refine-pairing", pairing, *extra, "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+                 "--refine-pairing", pairing, *extra,  # the flag's former name still works
+                 "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows][-1] == f"ours (run, step 3) + refinement{suffix}"
 
@@ -461,5 +471,5 @@ def test_the_refinement_pairs_points_where_a_flownet3d_split_was_written_from_co
                  "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows][-1] == "ours (run, step 3) + refinement (point pairs)"
-    notes = [line for line in capsys.readouterr().err.splitlines() if "point pairs" in line]
+    notes = [line for line in capsys.readouterr().err.splitlines() if "pairs points" in line]
     assert len(notes) == 1 and "80% of frame 1's points land" in notes[0]
