@@ -50,6 +50,7 @@ from pipeline.kitti.stereo_flow import StereoPairs, stereo_pairs, write_hpl_scen
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 SCENE = SHARED / "kitti_sceneflow2015_000139"
+LAYOUTS = ("hplflownet", "flownet3d")  #: the split's file layout (``--layout``)
 MAPPING = "mapping.txt"  #: one non-empty line per scene: ``--protocol hplflownet --mapping`` keeps them all
 CALIB = SHARED / "kitti_raw_calib_2011_09_26" / "2011_09_26_calib" / "2011_09_26" / "calib_cam_to_cam.txt"
 
@@ -69,6 +70,10 @@ class RealStereoConfig:
         rigid_background: give the points not labelled moving the dominant rigid motion as their truth (their
             frame-2 point moved there), as KITTI's own ground truth gives the static background the camera's
             motion; off = the estimate's flow everywhere.
+        layout: ``hplflownet`` (HPLFlowNet's stereoKITTI folders, every pair, the reader cuts the ground and
+            the range) or ``flownet3d`` (one ``.npz`` per scene, as FlowNet3D's ``kitti_rm_ground`` was written
+            from KITTI's correspondences: the pairs within that cut, ``pos2`` = ``pos1 + gt`` in shuffled rows;
+            docs/learned-flow.md, thirty-fifth round).
         out: the split folder to create (must not exist).
     """
 
@@ -79,6 +84,7 @@ class RealStereoConfig:
     moving_m: float = 0.3
     seed: int = 0
     rigid_background: bool = False
+    layout: str = "hplflownet"
     out: str = ""
 
 
@@ -121,6 +127,8 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     (points kept by the reader per scene, on average; the fraction of them labelled moving)."""
     if cfg.pairs < 1:
         raise ValueError(f"pairs must be ≥ 1, got {cfg.pairs}")
+    if cfg.layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {cfg.layout!r}")
     out = Path(cfg.out)
     if out.exists():
         raise InputError(out, "exists; choose a new folder (the split is written whole or not at all)")
@@ -138,11 +146,26 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     order = np.random.default_rng(cfg.seed).permutation(len(pairs.pc1))
     for k, idx in enumerate(np.array_split(order, cfg.pairs)):
         idx = np.sort(idx)
-        write_hpl_scene(part / f"{k:06d}", pairs.subset(idx), moving[idx])
-    source = f"{Path(cfg.scene).name} {cfg.name} (pixels {{}} of {cfg.pairs}, seed {cfg.seed})"
-    (part / MAPPING).write_text("".join(source.format(k) + "\n" for k in range(cfg.pairs)), encoding="utf-8")
+        if cfg.layout == "flownet3d":
+            _write_flownet3d_scene(part / f"{k:06d}.npz", pairs.subset(idx[cut[idx]]), moving[idx[cut[idx]]],
+                                   np.random.default_rng([cfg.seed, k]))
+        else:
+            write_hpl_scene(part / f"{k:06d}", pairs.subset(idx), moving[idx])
+    if cfg.layout == "hplflownet":
+        source = f"{Path(cfg.scene).name} {cfg.name} (pixels {{}} of {cfg.pairs}, seed {cfg.seed})"
+        (part / MAPPING).write_text("".join(source.format(k) + "\n" for k in range(cfg.pairs)), encoding="utf-8")
     part.rename(out)
     return int(cut.sum()) // cfg.pairs, float(moving[cut].mean())
+
+
+def _write_flownet3d_scene(path: Path, pairs: StereoPairs, moving: np.ndarray, rng: np.random.Generator) -> None:
+    """One FlowNet3D-layout scene (LiDAR-like axes): ``pos1``, its flow ``gt``, ``moving``, and ``pos2`` = the same
+    points moved, in an order of their own (the file then says nothing about which row pairs with which)."""
+    axes = FORMAT_AXES["flownet3d"]
+    pos1 = axes.from_camera(pairs.pc1).astype(np.float32)
+    gt = axes.from_camera(pairs.pc2 - pairs.pc1).astype(np.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, pos1=pos1, pos2=(pos1 + gt)[rng.permutation(len(pos1))], gt=gt, moving=np.asarray(moving, bool))
 
 
 def _main(argv: list[str] | None) -> int:

@@ -70,3 +70,25 @@ def test_the_rigid_background_gives_the_static_points_one_rigid_motion_and_keeps
     T0 = dominant_motion(est.pc1[~est.moving], (est.pc1 + est.flow)[~est.moving])
     resid0 = np.linalg.norm(est.pc1 @ T0[:3, :3].T + T0[:3, 3] - (est.pc1 + est.flow), axis=1)
     assert np.median(resid0[~est.moving]) > 0.02
+
+
+def test_the_flownet3d_layout_holds_the_same_pairs_as_frame_one_s_points_moved(shared_data: Path, tmp_path: Path):
+    """``--layout flownet3d`` writes what the ``hplflownet`` reader keeps of each scene, as FlowNet3D's
+    ``kitti_rm_ground`` was written from KITTI's correspondences: pos2 is pos1 + gt in rows of its own order, so
+    ``--pairing auto`` reads the split as built from correspondences."""
+    from evaluation.pairing import choose_pairing
+
+    build_split(_cfg(shared_data, tmp_path / "hpl", pairs=2))
+    build_split(_cfg(shared_data, tmp_path / "fn3d", pairs=2, layout="flownet3d"))
+    assert sorted(p.name for p in (tmp_path / "fn3d").iterdir()) == ["000000.npz", "000001.npz"]
+    hpl, fn3d = load_split(str(tmp_path / "hpl"), "auto"), load_split(str(tmp_path / "fn3d"), "auto")
+    assert fn3d.fmt == "flownet3d"
+    for a, b in zip(hpl, fn3d):
+        order_a, order_b = np.lexsort(a.pc1.T), np.lexsort(b.pc1.T)
+        np.testing.assert_allclose(b.pc1[order_b], a.pc1[order_a], atol=1e-5)
+        np.testing.assert_allclose(b.flow[order_b], a.flow[order_a], atol=1e-5)
+        np.testing.assert_array_equal(b.moving[order_b], a.moving[order_a])
+        moved = b.pc1 + b.flow
+        assert not np.allclose(b.pc2, moved)  # the rows are not paired ...
+        np.testing.assert_allclose(b.pc2[np.lexsort(b.pc2.T)], moved[np.lexsort(moved.T)], atol=1e-5)  # ... the points are
+    assert choose_pairing(fn3d, "flownet3d", by_format=False).pairing == "points"
