@@ -34,11 +34,11 @@ def _csv(text: str) -> list[str]:
     return [t for t in (x.strip() for x in text.split(",")) if t]
 
 
-def _degrees(flag: str, text: str) -> float:
+def _number(flag: str, text: str, unit: str = "degrees") -> float:
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f"{flag} must be 'as-trained' or a number of degrees, got {text!r}") from None
+        raise ConfigError(f"{flag} must be 'as-trained' or a number of {unit}, got {text!r}") from None
 
 
 AS_TRAINED = {"as-trained": None, "on": True, "off": False}
@@ -135,6 +135,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "inference only; needs the anchor or the rigid vote): as trained, or a number (0 = off, 6 = "
                         "the demo preset's), so a net trained before the scan existed can use it; a change is named "
                         "in the row")
+    r.add_argument("--vote-gap", default="as-trained",
+                   help="metres: each checkpoint's rigid vote picks among its hypotheses the motion with the least "
+                        "mean gap to frame 2, each gap truncated here (model.rigid_vote_gap_m, inference only; needs "
+                        "the anchor or the rigid vote): as trained, or a number (0 = by the points each explains, "
+                        "0.3 = the demo preset's); a change is named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -263,10 +268,11 @@ def _run(args) -> int:
     scenes = split
     first = scenes[0]
     anchor = AS_TRAINED[args.eval_anchor]
-    turn_scan = None if args.turn_scan == "as-trained" else _degrees("--turn-scan", args.turn_scan)
+    turn_scan = None if args.turn_scan == "as-trained" else _number("--turn-scan", args.turn_scan)
+    vote_gap = None if args.vote_gap == "as-trained" else _number("--vote-gap", args.vote_gap, "metres")
     dense = AS_TRAINED[args.evidence_dense]
-    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense)
-            for c in args.checkpoint]
+    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
+                      vote_gap=vote_gap) for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

@@ -79,11 +79,13 @@ class NetMethod:
     off), so a net trained before the scan existed can be scored with it; a change is named (", turn scan ±6°").
     ``evidence_dense`` (true / false) overrides the inference-only ``model.eval_evidence_dense`` (the anchor's
     evidence test against frame 2's whole input; thirty-fourth round), named (", dense evidence" / ", L0 evidence").
+    ``vote_gap`` (metres, 0 = off) overrides the inference-only ``model.rigid_vote_gap_m`` (the rigid vote's choice
+    by the mean gap to frame 2; thirty-fifth round), named (", vote by gap 0.3 m" / ", vote by count").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
-                 evidence_dense: bool | None = None) -> None:
+                 evidence_dense: bool | None = None, vote_gap: float | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -117,6 +119,9 @@ class NetMethod:
         if override("eval_evidence_dense", evidence_dense, "inference anchor's evidence test (eval_evidence_dense)",
                     lambda c: replace(c, eval_evidence_dense=bool(evidence_dense))):
             suffix += ", dense evidence" if evidence_dense else ", L0 evidence"
+        if override("rigid_vote_gap_m", vote_gap, "rigid vote to choose by its gap",
+                    lambda c: replace(c, rigid_vote_gap_m=float(vote_gap))):
+            suffix += f", vote by gap {vote_gap:g} m" if vote_gap else ", vote by count"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)

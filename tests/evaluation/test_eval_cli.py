@@ -379,6 +379,29 @@ def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, 
     assert [r["method"] for r in rows] == ["ours (run, step 3, turn scan ±6°)"]
 
 
+def test_the_votes_choice_by_gap_can_be_set_for_a_trained_net_and_names_the_row(world: Path, tmp_path: Path) -> None:
+    """``--vote-gap`` / ``NetMethod(vote_gap=…)``: an anchored net trained before the switch existed scored with the
+    rigid vote choosing by its gap (named, for inference only); a net without a rigid vote: one error line."""
+    from core.errors import ConfigError
+
+    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
+                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    plain, gap = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_gap=0.3)
+    assert plain.net.config.rigid_vote_gap_m == 0.0 and gap.net.config.rigid_vote_gap_m == 0.3
+    assert gap.name == "ours (run, step 3, vote by gap 0.3 m)" and NetMethod(path, device="cpu", vote_gap=0.0).name == plain.name
+    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
+    assert np.isfinite(gap(scene.pc1, scene.pc2)).all()
+    bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
+    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
+        NetMethod(bare, device="cpu", vote_gap=0.3)
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--vote-gap", "0.3", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, vote by gap 0.3 m)"]
+
+
 def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
     """``--evidence-dense`` / ``NetMethod(evidence_dense=…)``: an anchored net trained before the switch existed
     scored with it (named, the config changed for inference only); a net whose anchor is forced off has no

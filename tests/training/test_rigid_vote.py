@@ -82,6 +82,37 @@ def test_range_weighting_picks_the_far_static_scene_over_a_near_mover_as_dense()
     assert _static_error(R2[0], t2[0] + shift[0] - shift[0] @ R2[0].T, pc1[0], torch.eye(3), t_true) < 0.1
 
 
+def test_by_its_gap_the_vote_picks_the_motion_that_brings_frame_one_nearest_frame_two(monkeypatch):
+    """``choose_gap_m``: the hypotheses are weighed by the mean (truncated) gap from frame 1 moved to frame 2, not by
+    the points each explains within a sample spacing. Here the count is made to prefer the least explaining
+    hypothesis (the car's motion or a stray peak): counted, the camera motion is lost; by the gap, it is found."""
+    import training.model.rigid_vote as rv
+
+    real = rv.explained
+    monkeypatch.setattr(rv, "explained", lambda *a, **k: -real(*a, **k))
+    R_true, t_true = _turn(2.0), torch.tensor([0.0, 0.0, 1.2])
+    pc1 = _street(900)
+    car = torch.rand(1, 300, 3, generator=torch.Generator().manual_seed(2)) * torch.tensor([2.0, 1.5, 4.0])
+    car = car + torch.tensor([1.0, -0.5, 12.0])
+    pc1_all = torch.cat([pc1, car], 1)
+    pc2_all = torch.cat([_street(900, seed=1) @ R_true.T + t_true, car + torch.tensor([0.0, 0.0, -1.5])], 1)
+    R, t = vote_rigid(pc1_all, pc2_all)
+    assert _static_error(R[0], t[0], pc1[0], R_true, t_true) > 0.5
+    for weighted in (False, True):
+        R, t = vote_rigid(pc1_all, pc2_all, RigidVoteConfig(choose_gap_m=0.3, range_weighted=weighted))
+        assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08
+
+
+def test_the_mean_gap_truncates_and_weighs():
+    from training.model.rigid_vote import mean_gap
+
+    moved = torch.tensor([[[0.0, 0.0, 0.0], [0.0, 0.0, 10.0]]], dtype=torch.float64)
+    frame2 = torch.tensor([[[0.0, 0.0, 0.1], [0.0, 0.0, 12.0]]], dtype=torch.float64)
+    assert torch.allclose(mean_gap(moved, frame2, 0.5), torch.tensor([0.3], dtype=torch.float64))  # (0.1 + 0.5) / 2
+    w = torch.tensor([[1.0, 3.0]], dtype=torch.float64)
+    assert torch.allclose(mean_gap(moved, frame2, 0.5, w), torch.tensor([0.4], dtype=torch.float64))  # (0.1 + 1.5) / 4
+
+
 def test_planar_fits_a_turn_about_y_and_no_vertical_motion():
     R_true, t_true = _turn(3.0), torch.tensor([0.1, 0.0, 1.0])
     pc1 = _street(900)
@@ -123,6 +154,14 @@ def test_bad_settings_are_refused():
         HALFlowConfig(translation_vote=True, rigid_vote_yaw_deg=6.0)
     with pytest.raises(ConfigError, match="rigid_vote_yaw_deg"):
         HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_yaw_deg=-1.0)
+    with pytest.raises(ValueError):
+        RigidVoteConfig(choose_gap_m=-0.1)
+    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
+        HALFlowConfig(translation_vote=True, rigid_vote_gap_m=0.3)
+    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
+        HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_gap_m=-0.3)
+    anchored = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True, rigid_vote_gap_m=0.3)
+    assert anchored.without_anchor().rigid_vote_gap_m == 0  # no vote left to choose
 
 
 ORIGIN = torch.zeros(1, 3, dtype=torch.float64)

@@ -72,6 +72,12 @@ class HALFlowConfig:
         trimmed rounds there (:class:`~training.model.rigid_vote.RigidVoteConfig` ``yaw_search_deg``): from
         no turn they reach about a degree, KITTI turns up to 2.6° per frame in its 95th percentile
         (docs/learned-flow.md, thirty-second round). Needs ``rigid_vote`` or ``eval_anchor``; 0 = no scan.
+    rigid_vote_gap_m: metres; the rigid vote picks among its hypotheses the motion that brings frame 1's L0
+        points nearest to frame 2's whole input (with ``rigid_vote_dense``; else its L0 points): the mean
+        distance to the nearest point, each truncated at this (:class:`~training.model.rigid_vote.RigidVoteConfig`
+        ``choose_gap_m``). Within one L0 sample spacing a big mover's motion can explain as many points as the
+        camera's; the mean gap still tells them apart (docs/learned-flow.md, thirty-fifth round). Needs
+        ``rigid_vote`` or ``eval_anchor``; 0 = by the points each explains (``rigid_vote_far``'s weights).
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -171,6 +177,7 @@ class HALFlowConfig:
     rigid_vote_dense: bool = False
     rigid_vote_far: bool = False
     rigid_vote_yaw_deg: float = 0.0
+    rigid_vote_gap_m: float = 0.0
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -226,6 +233,11 @@ class HALFlowConfig:
         if self.rigid_vote_yaw_deg and not (self.rigid_vote or self.eval_anchor):
             raise ConfigError("model.rigid_vote_yaw_deg changes the rigid vote: it needs model.rigid_vote or "
                               "model.eval_anchor")
+        if not self.rigid_vote_gap_m >= 0:
+            raise ConfigError(f"model.rigid_vote_gap_m must be >= 0, got {self.rigid_vote_gap_m}")
+        if self.rigid_vote_gap_m and not (self.rigid_vote or self.eval_anchor):
+            raise ConfigError("model.rigid_vote_gap_m changes the rigid vote: it needs model.rigid_vote or "
+                              "model.eval_anchor")
         if self.eval_gate_k < 0:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
@@ -276,14 +288,15 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` where no rigid vote
-        is left and ``eval_evidence_dense`` where no evidence test is."""
+        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m``
+        where no rigid vote is left and ``eval_evidence_dense`` where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
-                       rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0)
+                       rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0,
+                       rigid_vote_gap_m=self.rigid_vote_gap_m if keep_vote else 0.0)
 
     @property
     def output_points(self) -> tuple[int, ...]:

@@ -23,7 +23,11 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
    which spreads the static scene's votes by θ·ρ, a dense mover can win it; picking after the rigid
    rounds compares every hypothesis at its best. With ``range_weighted`` each explained point counts its
    distance from the camera instead of 1, so a dense mover near the camera does not outweigh the far
-   static scene.
+   static scene. With ``choose_gap_m`` the hypothesis that brings frame 1 nearest to frame 2's denser cloud
+   wins instead: the mean distance from each moved frame-1 point to its nearest point of ``target`` (or of
+   frame 2), truncated at ``choose_gap_m`` (weighted by range with ``range_weighted``). Within one sample spacing a big mover's motion and the camera's can
+   both "explain" nearly every point (on the real stereo scene the van's motion, 0.67 m from the camera's,
+   did on one scene of eight); the mean gap still tells them apart (docs/learned-flow.md, thirty-fifth round).
 
 The trimmed rounds started at no turn reach a turn of about a degree: a turn of θ moves a point at range ρ by
 θ·ρ, past the widest radius beyond 30 m at 2°, and the near points left shift the translation instead
@@ -72,6 +76,8 @@ class RigidVoteConfig:
         least ``yaw_resolution_deg`` (2 → 1: nine histograms for ±6°, as close as a plain 1° grid's thirteen on
         the demo world's turned test scenes); the rounds take the rest.
     yaw_resolution_deg: the scan's finest step, degrees.
+    choose_gap_m: step 4 by the mean nearest gap to frame 2's denser cloud, each gap truncated at this many
+        metres (the hypothesis with the smallest wins); 0 = by the frame-1 points each explains.
     yaw_margin: a turn is taken only when its fullest cell holds more than ``1 + yaw_margin`` times the no-turn
         histogram's: at no turn a ±1° neighbour can fill it a few per cent more by chance (1.01–1.04 on a fresh
         default-configuration world, where the rounds from that 1° start then failed), a real turn of 1° fills it
@@ -88,6 +94,7 @@ class RigidVoteConfig:
     yaw_step_deg: float = 2.0
     yaw_resolution_deg: float = 1.0
     yaw_margin: float = 0.05
+    choose_gap_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.radii_m and all(r > 0 for r in self.radii_m) and self.rounds >= 1 and self.min_inliers >= 3):
@@ -96,6 +103,8 @@ class RigidVoteConfig:
                 and self.yaw_margin >= 0):
             raise ValueError("need 0 <= yaw_search_deg < 90, yaw_step_deg > 0, yaw_resolution_deg > 0 and "
                              f"yaw_margin >= 0, got {self}")
+        if not self.choose_gap_m >= 0:
+            raise ValueError(f"need choose_gap_m >= 0, got {self.choose_gap_m}")
 
     @property
     def turns_deg(self) -> tuple[float, ...]:
@@ -171,6 +180,17 @@ def trimmed_rounds(a: Tensor, b: Tensor, R: Tensor, t: Tensor,
     return R, t, count
 
 
+def mean_gap(moved: Tensor, b: Tensor, truncate_m: float, weights: Tensor | None = None) -> Tensor:
+    """(H,) the mean distance from each point of ``moved`` (H, M, 3) to its nearest point of ``b`` (H, P, 3), or
+    (B, P, 3) with every cloud's hypotheses in a row (:func:`~training.model.translation_vote.nearest`), each
+    distance truncated at ``truncate_m`` metres; weighted by ``weights`` (H, M) when given."""
+    d2, _ = nearest(moved, b)
+    gap = d2.clamp(min=0).sqrt().clamp(max=truncate_m)
+    if weights is None:
+        return gap.mean(1)
+    return (gap * weights).sum(1) / weights.sum(1).clamp(min=1e-12)
+
+
 @torch.no_grad()
 def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None,
                target: Tensor | None = None, origin: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -207,13 +227,16 @@ def vote_rigid(xyz1: Tensor, xyz2: Tensor, config: RigidVoteConfig | None = None
     # step 3 of the vote with the whole motion: the hypothesis that explains the most frame-1 points (each
     # weighted by its range with range_weighted), against the vote's own frame-2 samples, whose spacing the
     # frame-1 spacing matches
-    samples = b if target is None else xyz2.detach().double()
+    moved = a @ R.transpose(1, 2) + t[:, None]
     weights = None
     if cfg.range_weighted:
         rng = (x1 - o[:, None]).norm(dim=-1)  # (B, M) metres from the camera
         weights = per_hypothesis(rng, K)
-    score = explained(a @ R.transpose(1, 2) + t[:, None], samples, per_hypothesis(h.spacing.double(), K),
-                      weights).reshape(B, K)
+    if cfg.choose_gap_m > 0:  # or the one that brings frame 1 nearest to frame 2's denser cloud
+        score = -mean_gap(moved, b, cfg.choose_gap_m, weights).reshape(B, K)
+    else:
+        samples = b if target is None else xyz2.detach().double()
+        score = explained(moved, samples, per_hypothesis(h.spacing.double(), K), weights).reshape(B, K)
     pick = score.argmax(dim=1)
     R, t = R.reshape(B, K, 3, 3)[torch.arange(B), pick], t.reshape(B, K, 3)[torch.arange(B), pick]
     R = torch.where(h.found[:, None, None], R, torch.eye(3, dtype=R.dtype, device=R.device))
