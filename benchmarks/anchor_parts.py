@@ -23,7 +23,7 @@ from training.model.halflownet_config import ANCHOR_SWITCHES
 _L1 = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
 _VOTE = {"ego_l0_hold": True, "ego_l0_hold_from": "vote"}
 _OFF = {"rigid_vote": False, "rigid_vote_dense": False, "rigid_vote_far": False, "ego_l0_hold": False,
-        "ego_gate_evidence": False, "eval_evidence_dense": False}
+        "ego_gate_evidence": False, "eval_evidence_dense": False, "rigid_vote_gap_m": 0.0}
 PARTS: dict[str, dict[str, object]] = {
     "none": _OFF,
     "he": {**_OFF, **_L1, "ego_gate_evidence": True},
@@ -38,14 +38,17 @@ PARTS: dict[str, dict[str, object]] = {
     "alldfk": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16},
     "alldfkx": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
                 "eval_evidence_dense": True},
+    "alldfkxg": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
+                 "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
 frame 2's whole input (``rigid_vote_dense``), ``alldf`` and its choice weighed by range (``rigid_vote_far``),
 ``alldfk`` that with the gate reading each point's 16 nearest points (``eval_gate_k`` 16: the preset's
 anchor since the twenty-second round), ``alldfkx`` that with the evidence test read against frame 2's whole
-input (``eval_evidence_dense``: the preset's since the thirty-fourth round), ``none`` the net without any of
-them."""
+input (``eval_evidence_dense``: the preset's since the thirty-fourth round), ``alldfkxg`` that with the vote's
+choice made by its mean gap (``rigid_vote_gap_m`` 0.3 m: the preset's since the thirty-fifth round), ``none`` the
+net without any of them."""
 
 
 def with_parts(method, part: str):
