@@ -279,6 +279,8 @@ def _run(args) -> int:
     stacking = args.view_prune or args.rigid_polish or args.refine
     if args.pairing != "auto" and not stacking:
         raise ConfigError("--pairing sets how --view-prune, --rigid-polish and --refine read frame 2: add one of them")
+    if stacking and not nets:
+        raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     pairing = args.pairing
     if pairing == "auto" and stacking:  # read the split's construction only where a wrapper uses it
         choice = choose_pairing(scenes, split.fmt, REGISTRY[split.fmt].frame2_holds_frame1)
@@ -289,8 +291,6 @@ def _run(args) -> int:
     if pairing == "points" and args.view_prune:
         print("note: --view-prune is left out: frame 2 holds frame 1's own points, so none of them left the view",
               file=sys.stderr)
-    if (args.refine or args.view_prune or args.rigid_polish) and not nets:
-        raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
     named = {b: make_method(b) for b in baselines}
     methods = [*nets, *named.values()]
     if not methods:

@@ -244,10 +244,14 @@ class RigidPolishConfig:
                              "mad_factor >= 0")
 
 
-def _mean_nearest(tree2: cKDTree, points: np.ndarray, truncate: float) -> float:
-    """Mean distance (metres) from each of ``points`` to its nearest point of ``tree2``'s cloud, each
-    truncated at ``truncate``."""
-    return float(np.minimum(tree2.query(points, distance_upper_bound=truncate)[0], truncate).mean())
+def _mean_nearest(p2: np.ndarray, points: np.ndarray, truncate: float) -> float:
+    """Mean distance (metres) from each of ``points`` (N, 3) to its nearest point of ``p2`` (M, 3), each
+    truncated at ``truncate`` (the rigid vote's :func:`~training.model.rigid_vote.mean_gap`)."""
+    import torch
+
+    from training.model.rigid_vote import mean_gap
+
+    return float(mean_gap(torch.from_numpy(points)[None], torch.from_numpy(p2)[None], truncate)[0])
 
 
 def _agreeing(residual: np.ndarray, cfg: RigidPolishConfig) -> np.ndarray:
@@ -282,8 +286,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     if checked is not None and (_explained_share(p1, weights, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):
         T = checked[0]  # step 3b: the registration slid away from what explains the scene
-    if cfg.pairs_check and (_mean_nearest(tree2, apply_transform(T, p1), cfg.pairs_check)
-                            > _mean_nearest(tree2, apply_transform(init, p1), cfg.pairs_check)):
+    if cfg.pairs_check and (_mean_nearest(p2, apply_transform(T, p1), cfg.pairs_check)
+                            > _mean_nearest(p2, apply_transform(init, p1), cfg.pairs_check)):
         T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)

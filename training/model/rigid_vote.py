@@ -25,9 +25,10 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
    distance from the camera instead of 1, so a dense mover near the camera does not outweigh the far
    static scene. With ``choose_gap_m`` the hypothesis that brings frame 1 nearest to frame 2's denser cloud
    wins instead: the mean distance from each moved frame-1 point to its nearest point of ``target`` (or of
-   frame 2), truncated at ``choose_gap_m`` (weighted by range with ``range_weighted``). Within one sample spacing a big mover's motion and the camera's can
-   both "explain" nearly every point (on the real stereo scene the van's motion, 0.67 m from the camera's,
-   did on one scene of eight); the mean gap still tells them apart (docs/learned-flow.md, thirty-fifth round).
+   frame 2), truncated at ``choose_gap_m`` (weighted by range with ``range_weighted``). Within one sample
+   spacing a big mover's motion and the camera's can both "explain" nearly every point (on the real stereo
+   scene the van's motion, 0.67 m from the camera's, did on one scene of eight); the mean gap still tells
+   them apart (docs/learned-flow.md, thirty-fifth round).
 
 The trimmed rounds started at no turn reach a turn of about a degree: a turn of θ moves a point at range ρ by
 θ·ρ, past the widest radius beyond 30 m at 2°, and the near points left shift the translation instead
