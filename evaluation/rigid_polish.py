@@ -244,14 +244,15 @@ class RigidPolishConfig:
                              "mad_factor >= 0")
 
 
-def _mean_nearest(p2: np.ndarray, points: np.ndarray, truncate: float) -> float:
-    """Mean distance (metres) from each of ``points`` (N, 3) to its nearest point of ``p2`` (M, 3), each
-    truncated at ``truncate`` (the rigid vote's :func:`~training.model.rigid_vote.mean_gap`)."""
+def _mean_gaps(p2: np.ndarray, clouds: list[np.ndarray], truncate: float) -> np.ndarray:
+    """(K,) for each of ``clouds`` (K of them, each (N, 3)): the mean distance (metres) from its points to their
+    nearest point of ``p2`` (M, 3), each truncated at ``truncate`` — the rigid vote's
+    :func:`~training.model.rigid_vote.mean_gap`, one search structure over ``p2`` for all K."""
     import torch
 
     from training.model.rigid_vote import mean_gap
 
-    return float(mean_gap(torch.from_numpy(points)[None], torch.from_numpy(p2)[None], truncate)[0])
+    return mean_gap(torch.from_numpy(np.stack(clouds)), torch.from_numpy(p2)[None], truncate).numpy()
 
 
 def _agreeing(residual: np.ndarray, cfg: RigidPolishConfig) -> np.ndarray:
@@ -286,9 +287,10 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     if checked is not None and (_explained_share(p1, weights, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):
         T = checked[0]  # step 3b: the registration slid away from what explains the scene
-    if cfg.pairs_check and (_mean_nearest(p2, apply_transform(T, p1), cfg.pairs_check)
-                            > _mean_nearest(p2, apply_transform(init, p1), cfg.pairs_check)):
-        T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
+    if cfg.pairs_check:
+        registered, started = _mean_gaps(p2, [apply_transform(T, p1), apply_transform(init, p1)], cfg.pairs_check)
+        if registered > started:
+            T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)

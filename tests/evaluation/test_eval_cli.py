@@ -37,6 +37,12 @@ def save_tiny_checkpoint(path: Path, seed: int = 0, **model_overrides) -> Path:
     return save_checkpoint(path, {"kind": "flow", "model": net.state_dict(), "step": 3, "config": asdict(cfg)})
 
 
+ANCHORED = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
+                eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
+"""A tiny net's model parts for an anchored net (the vote dense and weighed by range), as the inference switches
+need it."""
+
+
 @pytest.fixture(scope="module")
 def world(tmp_path_factory) -> Path:
     from pipeline.synth.config import SynthConfig
@@ -235,8 +241,7 @@ def test_the_inference_anchor_can_be_forced_either_way_and_names_the_row(world: 
 def test_a_net_anchored_with_the_dense_vote_can_be_scored_without_the_anchor(tmp_path: Path) -> None:
     """The demo preset's net (``eval_anchor``, ``rigid_vote_dense``, ``rigid_vote_far``, ``eval_gate_k``)
     forced off runs without the vote, so the anchor's options go with it instead of refusing the config."""
-    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True, eval_gate_k=16)
+    parts = dict(ANCHORED, eval_gate_k=16)
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
     off = NetMethod(path, device="cpu", eval_anchor=False)
     assert off.name == "ours (run, step 3, not anchored)"
@@ -363,9 +368,7 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
 def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, tmp_path: Path) -> None:
     """``--turn-scan``: an anchored net trained before the scan existed (``rigid_vote_yaw_deg`` 0) scored with it;
     the row is named, the config changed for inference only, and ``as-trained`` leaves it alone."""
-    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
-    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
     plain, scanned = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", turn_scan=6.0)
     assert plain.net.config.rigid_vote_yaw_deg == 0.0 and scanned.net.config.rigid_vote_yaw_deg == 6.0
     assert scanned.name == "ours (run, step 3, turn scan ±6°)" and plain.name == "ours (run, step 3)"
@@ -384,9 +387,7 @@ def test_the_votes_choice_by_gap_can_be_set_for_a_trained_net_and_names_the_row(
     rigid vote choosing by its gap (named, for inference only); a net without a rigid vote: one error line."""
     from core.errors import ConfigError
 
-    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
-    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
     plain, gap = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_gap=0.3)
     assert plain.net.config.rigid_vote_gap_m == 0.0 and gap.net.config.rigid_vote_gap_m == 0.3
     assert gap.name == "ours (run, step 3, vote by gap 0.3 m)" and NetMethod(path, device="cpu", vote_gap=0.0).name == plain.name
@@ -408,9 +409,7 @@ def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(w
     evidence test to change: one error naming the checkpoint."""
     from core.errors import ConfigError
 
-    parts = dict(translation_vote=True, ego_head=True, l0_cost_volume=True, norm="layer", feature_dim=0,
-                 eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True)
-    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **parts)
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
     plain, dense = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", evidence_dense=True)
     assert not plain.net.config.eval_evidence_dense and dense.net.config.eval_evidence_dense
     assert dense.name == "ours (run, step 3, dense evidence)" and plain.name == "ours (run, step 3)"
