@@ -16,7 +16,15 @@ dropped as FlowNet3D's split does, and each pair then
   median 0.94 m); without ``poses``, forward by ``forward_m`` (uniform) along an arc that turns it by
   ``yaw_deg`` (uniform ±, median 1.5°: a stress test of turns) and pitches it by ``pitch_deg`` (±);
 * expresses frame t+1's half in the moved camera's frame; the true flow of frame t's points is the
-  camera's motion alone (the paper's eq. 11, ``sf = (R p + t) − p``), every point static.
+  camera's motion alone (the paper's eq. 11, ``sf = (R p + t) − p``), every point static;
+* with ``movers``, first moves that many of the scan's object-sized clusters (cars, a cyclist, a post:
+  :func:`core.clusters.object_clusters`, at least ``mover_min_points`` points) by a motion of their own — along
+  the cluster's longer horizontal axis, either way, with a small turn about its centre — so frame t+1 sees
+  them where they went; their true flow is that motion and then the camera's, and they are marked ``moving``.
+
+The movers are real scanned shapes, but their motion is drawn here, not observed: what a split with them
+checks is how the flow follows a real car's points (its shape, its sampling, its occlusion of what is behind
+it) when that car moves, independently of the synthetic generator's boxes and meshes.
 
 Two halves of one scan keep that scan's sampling pattern: frame t+1's rings stay where the scanner was at
 frame t, whereas a real second scan's rings, and its density fall-off, move with the sensor. ``rescan``
@@ -26,8 +34,8 @@ cell's centre ray at its range), so both frames have a sensor-fixed pattern, as 
 scans have, and the ground and depth cuts are made in each frame's own camera.
 
 So it checks the camera-motion part of the flow (most of KITTI's points) on real street geometry: the
-range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan. It has no movers; their error
-is measured on the synthetic splits only. Used in docs/learned-flow.md (seventeenth round)::
+range distribution, density fall-off and surfaces of a Velodyne HDL-64 scan; with ``movers``, also the
+movers' part on real shapes. Used in docs/learned-flow.md (seventeenth round)::
 
     python -m benchmarks.real_rigid --scan ../shared/data/kitti_object_000008/000008.bin \\
         --calib ../shared/data/kitti_object_000008/calib_000008.txt \\
@@ -71,6 +79,12 @@ class RealRigidConfig:
             position (sensor-fixed rings and density, as in two real scans) instead of two halves of it.
         ring_deg: elevation spacing of the virtual scanner's rings, degrees (HDL-64E: about 0.4).
         azimuth_deg: azimuth step of the virtual scanner, degrees.
+        movers: object-sized clusters moved per pair by their own motion (drawn anew for each pair among the
+            scan's clusters of at least ``mover_min_points`` points; fewer when it has fewer); 0 = a static scene.
+        mover_min_points: smallest cluster (scan points within the cuts) that may be moved.
+        mover_m: how far a mover goes between the two frames along its longer horizontal axis, metres (uniform
+            in the range; 0.3–1.5 m is 3–15 m/s at KITTI's 10 Hz), the direction either way at random.
+        mover_yaw_deg: largest turn of a mover about the vertical through its centre, degrees (uniform in ±).
     """
 
     scan: str = ""
@@ -87,6 +101,10 @@ class RealRigidConfig:
     rescan: bool = False
     ring_deg: float = 0.4
     azimuth_deg: float = 0.2
+    movers: int = 0
+    mover_min_points: int = 30
+    mover_m: tuple[float, float] = (0.3, 1.5)
+    mover_yaw_deg: float = 2.0
 
 
 def scan_points(scan: str | Path, calib: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -112,6 +130,13 @@ def ring_scan(points: np.ndarray, sensor: np.ndarray, ring_deg: float, azimuth_d
     a cell of ``ring_deg`` elevation (atan2(−y, √(x² + z²))) by ``azimuth_deg`` azimuth (atan2(x, z)); per
     cell the nearest point is returned (the others are behind it), moved onto the cell's centre ray at its
     range, so the rings and the density fall-off are the sensor's own. (M, 3), M ≤ N, in cell order."""
+    return ring_pick(points, sensor, ring_deg, azimuth_deg)[1]
+
+
+def ring_pick(points: np.ndarray, sensor: np.ndarray, ring_deg: float,
+              azimuth_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ring_scan` with its sources: the index (M,) into ``points`` of the point each returned one was
+    taken from, and the returned points (M, 3)."""
     d = points - sensor
     rng = np.linalg.norm(d, axis=1)
     flat = np.hypot(d[:, 0], d[:, 2])
@@ -125,7 +150,7 @@ def ring_scan(points: np.ndarray, sensor: np.ndarray, ring_deg: float, azimuth_d
     el = np.radians((e[pick] + 0.5) * ring_deg)
     az = np.radians((a[pick] + 0.5) * azimuth_deg)
     ray = np.stack([np.cos(el) * np.sin(az), -np.sin(el), np.cos(el) * np.cos(az)], axis=1)
-    return sensor + rng[pick, None] * ray
+    return pick, sensor + rng[pick, None] * ray
 
 
 def camera_motion(rng: np.random.Generator, cfg: RealRigidConfig) -> np.ndarray:
@@ -138,6 +163,59 @@ def camera_motion(rng: np.random.Generator, cfg: RealRigidConfig) -> np.ndarray:
     pose[:3, :3] = euler_to_matrix(np.array([pitch, yaw, 0.0]))
     pose[:3, 3] = d * np.array([np.sin(yaw / 2), 0.0, np.cos(yaw / 2)])
     return se3_inverse(pose)
+
+
+def object_motion(rng: np.random.Generator, points: np.ndarray, cfg: RealRigidConfig) -> np.ndarray:
+    """``M`` (4, 4) in camera-t coordinates: one mover's own motion between the two frames, for the cluster
+    ``points`` (K, 3), metres: a turn by up to ``mover_yaw_deg`` about the camera's y axis through the cluster's
+    centre, then ``mover_m`` metres along the cluster's longer horizontal (x–z) axis, either way."""
+    centre = points.mean(axis=0)
+    xz = points[:, [0, 2]] - centre[[0, 2]]
+    axis = np.linalg.eigh(xz.T @ xz)[1][:, -1]  # the longer horizontal axis (a car's length)
+    heading = np.array([axis[0], 0.0, axis[1]]) * rng.choice((-1.0, 1.0))
+    yaw = np.deg2rad(rng.uniform(-cfg.mover_yaw_deg, cfg.mover_yaw_deg))
+    R = euler_to_matrix(np.array([0.0, yaw, 0.0]))
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = centre - R @ centre + rng.uniform(*cfg.mover_m) * heading
+    return M
+
+
+def mover_clusters(whole: np.ndarray, keep: np.ndarray, min_points: int) -> list[np.ndarray]:
+    """The clusters that may be moved: the object-sized clusters (:func:`core.clusters.object_clusters`) of
+    ``whole[keep]`` with at least ``min_points`` points, each as indices into ``whole``."""
+    from core.clusters import object_clusters
+
+    kept = np.flatnonzero(keep)
+    return [kept[o] for o in object_clusters(whole[keep]) if len(o) >= min_points]
+
+
+def moved_scene(rng: np.random.Generator, whole: np.ndarray, clusters: list[np.ndarray],
+                cfg: RealRigidConfig) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """One pair's movers: ``cfg.movers`` of ``clusters`` (fewer when there are fewer) drawn with ``rng``, each
+    moved by its own :func:`object_motion`. Returns the scan at frame t+1 in camera-t coordinates (N, 3), which
+    mover each scan point belongs to (N,; −1: static) and the movers' motions ``M`` (4, 4) in that order."""
+    label = np.full(len(whole), -1, dtype=np.int64)
+    moved = whole.copy()
+    motions: list[np.ndarray] = []
+    if cfg.movers <= 0:
+        return moved, label, motions
+    for k, c in enumerate(rng.choice(len(clusters), size=min(cfg.movers, len(clusters)), replace=False)):
+        M = object_motion(rng, whole[clusters[c]], cfg)
+        moved[clusters[c]] = transform_points(M, whole[clusters[c]])
+        label[clusters[c]] = k
+        motions.append(M)
+    return moved, label, motions
+
+
+def true_flow(points: np.ndarray, label: np.ndarray, T: np.ndarray, motions: list[np.ndarray]) -> np.ndarray:
+    """The true flow (N, 3) of frame-t points ``points`` (N, 3), camera-t frame, metres: ``T p − p`` for the static
+    ones (label −1; eq. 11), ``T M_k p − p`` for those of mover ``k``."""
+    flow = static_flow(points, T)
+    for k, M in enumerate(motions):
+        on = label == k
+        flow[on] = static_flow(points[on], T @ M)
+    return flow
 
 
 def kitti_motions(poses: str | Path) -> np.ndarray:
@@ -162,7 +240,8 @@ def build_split(cfg: RealRigidConfig) -> int:
     from pipeline.synth.writer import frame_name, save_npz
 
     whole, sensor = scan_points(cfg.scan, cfg.calib)
-    points = whole[split_keep(whole, cfg.ground_y, cfg.max_depth)]
+    keep = split_keep(whole, cfg.ground_y, cfg.max_depth)
+    points = whole[keep]
     if len(points) < 64:
         raise InputError(Path(cfg.scan), f"only {len(points)} non-ground points within {cfg.max_depth} m")
     out = Path(cfg.out)
@@ -173,24 +252,31 @@ def build_split(cfg: RealRigidConfig) -> int:
     rng = np.random.default_rng(cfg.seed)
     axes = FORMAT_AXES["flownet3d"]
     half = len(points) // 2
+    clusters = mover_clusters(whole, keep, cfg.mover_min_points) if cfg.movers > 0 else []
+    if cfg.movers > 0 and not clusters:
+        raise InputError(Path(cfg.scan), f"no object-sized cluster of {cfg.mover_min_points} or more points to move")
     if cfg.rescan:  # frame t is scanned from the same sensor position for every pair: once
-        first = ring_scan(whole, sensor, cfg.ring_deg, cfg.azimuth_deg)
-        first = first[split_keep(first, cfg.ground_y, cfg.max_depth)]
+        source, first = ring_pick(whole, sensor, cfg.ring_deg, cfg.azimuth_deg)
+        cut = split_keep(first, cfg.ground_y, cfg.max_depth)
+        source, first = source[cut], first[cut]
         half = len(first)
     motions = kitti_motions(cfg.poses) if cfg.poses else None
     for k in range(cfg.pairs):
         T = camera_motion(rng, cfg) if motions is None else motions[rng.integers(len(motions))]
         order = rng.permutation(len(points))  # drawn either way: with rescan, the same motions as without
+        later, label, own = moved_scene(rng, whole, clusters, cfg)  # draws nothing without movers
         if cfg.rescan:  # frame t+1 scanned from its own sensor position, cut in its own camera
-            second = ring_scan(transform_points(T, whole), sensor, cfg.ring_deg, cfg.azimuth_deg)
+            second = ring_scan(transform_points(T, later), sensor, cfg.ring_deg, cfg.azimuth_deg)
             second = second[split_keep(second, cfg.ground_y, cfg.max_depth)]
         else:
-            first, second = points[order[:half]], transform_points(T, points[order[half:]])
+            kept = np.flatnonzero(keep)
+            source, first = kept[order[:half]], points[order[:half]]
+            second = transform_points(T, later[kept[order[half:]]])
         save_npz(part / f"{frame_name(k)}.npz",
                  pos1=axes.from_camera(first).astype(np.float32),
                  pos2=axes.from_camera(second).astype(np.float32),
-                 gt=axes.from_camera(static_flow(first, T)).astype(np.float32),
-                 moving=np.zeros(len(first), dtype=bool))
+                 gt=axes.from_camera(true_flow(first, label[source], T, own)).astype(np.float32),
+                 moving=label[source] >= 0)
     part.rename(out)
     return half
 
