@@ -139,8 +139,9 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     T = dominant_motion(pairs.pc1[cut], pairs.pc2[cut])
     rigid = pairs.pc1.astype(np.float64) @ T[:3, :3].T + T[:3, 3]  # every pc1 point moved by the dominant motion
     moving = np.linalg.norm(rigid - pairs.pc2, axis=1) > cfg.moving_m
-    if cfg.rigid_background:
+    if cfg.rigid_background:  # and the reader's cut made on the frame-2 points written, as it is made on reading
         pairs = replace(pairs, pc2=np.where(moving[:, None], pairs.pc2, rigid.astype(pairs.pc2.dtype)))
+        cut = in_reader_cut(pairs)
     part = out.with_name(out.name + ".partial")
     shutil.rmtree(part, ignore_errors=True)
     order = np.random.default_rng(cfg.seed).permutation(len(pairs.pc1))

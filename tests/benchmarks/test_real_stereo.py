@@ -72,14 +72,17 @@ def test_the_rigid_background_gives_the_static_points_one_rigid_motion_and_keeps
     assert np.median(resid0[~est.moving]) > 0.02
 
 
-def test_the_flownet3d_layout_holds_the_same_pairs_as_frame_one_s_points_moved(shared_data: Path, tmp_path: Path):
+@pytest.mark.parametrize("rigid_background", [False, True])
+def test_the_flownet3d_layout_holds_the_same_pairs_as_frame_one_s_points_moved(shared_data: Path, tmp_path: Path,
+                                                                              rigid_background: bool):
     """``--layout flownet3d`` writes what the ``hplflownet`` reader keeps of each scene, as FlowNet3D's
     ``kitti_rm_ground`` was written from KITTI's correspondences: pos2 is pos1 + gt in rows of its own order, so
-    ``--pairing auto`` reads the split as built from correspondences."""
+    ``--pairing auto`` reads the split as built from correspondences. With a rigid background too: the cut is
+    made on the frame-2 points written, as the reader makes it."""
     from evaluation.pairing import choose_pairing
 
-    build_split(_cfg(shared_data, tmp_path / "hpl", pairs=2))
-    build_split(_cfg(shared_data, tmp_path / "fn3d", pairs=2, layout="flownet3d"))
+    build_split(_cfg(shared_data, tmp_path / "hpl", pairs=2, rigid_background=rigid_background))
+    build_split(_cfg(shared_data, tmp_path / "fn3d", pairs=2, layout="flownet3d", rigid_background=rigid_background))
     assert sorted(p.name for p in (tmp_path / "fn3d").iterdir()) == ["000000.npz", "000001.npz"]
     hpl, fn3d = load_split(str(tmp_path / "hpl"), "auto"), load_split(str(tmp_path / "fn3d"), "auto")
     assert fn3d.fmt == "flownet3d"
