@@ -20,7 +20,8 @@ dropped as FlowNet3D's split does, and each pair then
 * with ``movers``, first moves that many of the scan's object-sized clusters (cars, a cyclist, a post:
   :func:`core.clusters.object_clusters`, at least ``mover_min_points`` points) by a motion of their own — along
   the cluster's longer horizontal axis, either way, with a small turn about its centre — so frame t+1 sees
-  them where they went; their true flow is that motion and then the camera's, and they are marked ``moving``.
+  them where they went; their true flow is that motion and then the camera's, and they are marked ``moving``
+  (and ``instance``: which mover, −1 for the static points, as the synthetic splits write it).
 
 The movers are real scanned shapes, but their motion is drawn here, not observed: what a split with them
 checks is how the flow follows a real car's points (its shape, its sampling, its occlusion of what is behind
@@ -272,11 +273,13 @@ def build_split(cfg: RealRigidConfig) -> int:
             kept = np.flatnonzero(keep)
             source, first = kept[order[:half]], points[order[:half]]
             second = transform_points(T, later[kept[order[half:]]])
+        # with movers, which one each point lies on (instance, −1: static), as the synthetic splits write it
+        labels = {"instance": label[source].astype(np.int32)} if cfg.movers > 0 else {}
         save_npz(part / f"{frame_name(k)}.npz",
                  pos1=axes.from_camera(first).astype(np.float32),
                  pos2=axes.from_camera(second).astype(np.float32),
                  gt=axes.from_camera(true_flow(first, label[source], T, own)).astype(np.float32),
-                 moving=label[source] >= 0)
+                 moving=label[source] >= 0, **labels)
     part.rename(out)
     return half
 

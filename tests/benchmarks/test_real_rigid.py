@@ -122,6 +122,7 @@ def test_movers_carry_their_own_motion_onto_frame_t1_and_leave_the_rest_static(s
     for i in range(3):
         s = split[i]
         assert 0 < s.moving.mean() < 0.5
+        assert set(np.unique(s.instance[s.moving])) <= {0, 1} and (s.instance[~s.moving] == -1).all()
         a = s.pc1.astype(np.float64)
         R, t = static_motion(a[~s.moving], s.flow[~s.moving].astype(np.float64))
         still = a[~s.moving]
