@@ -37,6 +37,7 @@ class SynthConfig:
     fps: float = 10.0
     parked_cars: int = 10
     moving_cars: int = 4
+    crossing_cars: int = 0  # cars crossing the street on a side street ahead (pipeline.synth.world); 0 = none
     mover_speed_min: float = 3.0
     mover_speed_max: float = 12.0
     ego_speed_min: float = 8.0  # ≈ 0.8 m per frame at 10 Hz
@@ -77,7 +78,7 @@ class SynthConfig:
             raise ConfigError("need 0 < mover_speed_min <= mover_speed_max")
         if not (0 < self.ego_speed_min <= self.ego_speed_max):
             raise ConfigError("need 0 < ego_speed_min <= ego_speed_max")
-        if self.parked_cars < 0 or self.moving_cars < 0:
+        if self.parked_cars < 0 or self.moving_cars < 0 or self.crossing_cars < 0:
             raise ConfigError("car counts must be >= 0")
         if self.lidar_azimuth_step_deg <= 0 or self.test_lidar_azimuth_step_deg <= 0 or self.lidar_beams < 1:
             raise ConfigError("LiDAR azimuth steps must be > 0 and lidar_beams >= 1")

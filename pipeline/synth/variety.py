@@ -9,7 +9,8 @@ index), so one world holds several cameras and driving styles:
 * driving: ego speed range from U(2, 8) to U(10, 16) m/s (blended with the config's by v), a stop (the
   ego car brakes to ≈0.3 m/s and pulls away again) with probability 0.3v, turn radius down to 60 m;
 * traffic: parked cars U(0.4, 1.8) × the config's, moving cars U(0.25, 2) × the config's (at least 1),
-  mover speeds from U(1, 4) to U(8, 16) m/s.
+  mover speeds from U(1, 4) to U(8, 16) m/s; crossing cars U(0.25, 2) × the config's, rounded (drawn only when
+  the config has some, so a world without them is the one it was before the option).
 
 The test sequence keeps the config unchanged, so a world's scene-flow split does not move with
 ``variety`` and a net trained on a varied world is still scored on the config's own camera and street.
@@ -46,8 +47,10 @@ def sequence_config(cfg: SynthConfig, index: int, split: str) -> SynthConfig:
     mov_lo = _blend(cfg.mover_speed_min, rng.uniform(1.0, 4.0), v)
     mov_hi = max(mov_lo, _blend(cfg.mover_speed_max, rng.uniform(8.0, 16.0), v))
     radius = max(60.0, _blend(cfg.min_turn_radius, rng.uniform(60.0, 300.0), v))
+    crossing = cfg.crossing_cars if cfg.crossing_cars == 0 else int(round(cfg.crossing_cars * rng.uniform(0.25, 2.0)))
     return replace(
         cfg,
+        crossing_cars=crossing,
         width=width,
         height=height,
         focal_scale=cfg.focal_scale * scale(0.25),

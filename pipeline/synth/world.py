@@ -1,6 +1,12 @@
 """The scene of one sequence, drawn from a seed: road, pavements, buildings, trees, poles, parked and
 moving cars, and the ego camera's trajectory.
 
+With ``SynthConfig.crossing_cars`` a side street meets the road ahead of the ego car (a gap of
+:data:`SIDE_STREET_WIDTH` in the buildings, parked cars, trees and poles of both sides) and that many cars drive
+across the road along it, at right angles to the road, one way or the other: the traffic at an intersection,
+whose motion is across the camera's view, which the cars in the lanes never show. Their randomness comes from a
+stream of its own, so a world without them is the one it was before the option.
+
 All geometry lives in the map frame (x right, y down, z forward at the road's start; the road is the
 plane y = 0, see :mod:`pipeline.synth.road`). An object is a list of parts (primitives in the object's
 local frame, same axis convention) and one object→map pose per frame; only moving cars' poses change.
@@ -23,6 +29,7 @@ from pipeline.synth.road import (
 )
 
 GROUND_CATEGORIES = ("ground", "pavement")
+SIDE_STREET_WIDTH = 10.0  # metres between the buildings either side of the side street (crossing cars)
 
 
 @dataclass
@@ -230,11 +237,18 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
         objs.append(WorldObject(name, "pavement", [Part("slab", {"l0": l0, "l1": l1, "h": KERB_HEIGHT}, "pavement",
                                                          {"seed": int(rng.integers(1 << 30))})], I4))
     # buildings along both sides, and a row across each end of the street
+    side_street = _side_street(cfg, seq_index, s_ego)  # (s of its centre line, its rng) or None
+
+    def in_side_street(s: float, half_length: float) -> bool:
+        return side_street is not None and abs(s - side_street[0]) < SIDE_STREET_WIDTH / 2 + half_length
+
     for side in (1, -1):
         s = s_lo - 20.0
         while s < s_hi:
             w = rng.uniform(8.0, 20.0)
-            objs.append(_building(rng, road, s + w / 2, side, w, f"building_{'rl'[side < 0]}{len(objs)}"))
+            building = _building(rng, road, s + w / 2, side, w, f"building_{'rl'[side < 0]}{len(objs)}")
+            if not in_side_street(s + w / 2, w / 2):
+                objs.append(building)
             s += w + (rng.uniform(6.0, 10.0) if rng.random() < 0.25 else rng.uniform(0.0, 3.0))
     for s_end, name in ((s_hi + 8.0, "building_end"), (s_lo - 28.0, "building_start")):
         lo, hi = [-60.0, -rng.uniform(12.0, 20.0), -6.0], [60.0, 0.0, 6.0]
@@ -249,15 +263,18 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
                 r, h = rng.uniform(0.08, 0.14), rng.uniform(5.0, 8.0)
                 part = Part("cylinder", {"cx": 0.0, "cz": 0.0, "r": r, "y0": -h, "y1": 0.0}, "pole",
                             {"seed": int(rng.integers(1 << 30)), "radius": r})
-                objs.append(WorldObject(f"pole{len(objs)}", "pole", [part], _road_pose(road, s, side * (ROAD_HALF_WIDTH + 0.45))))
+                if not in_side_street(s, 0.5):
+                    objs.append(WorldObject(f"pole{len(objs)}", "pole", [part],
+                                            _road_pose(road, s, side * (ROAD_HALF_WIDTH + 0.45))))
             else:
                 rt, ht, rc = rng.uniform(0.12, 0.25), rng.uniform(2.4, 3.4), rng.uniform(1.2, 2.0)
                 seed = int(rng.integers(1 << 30))
                 trunk = Part("cylinder", {"cx": 0.0, "cz": 0.0, "r": rt, "y0": -ht - 0.5, "y1": 0.0}, "bark",
                              {"seed": seed, "radius": rt})
                 crown = Part("sphere", {"c": [0.0, -ht - 0.7 * rc, 0.0], "r": rc}, "foliage", {"seed": seed + 1})
-                objs.append(WorldObject(f"tree{len(objs)}", "tree", [trunk, crown],
-                                        _road_pose(road, s, side * (ROAD_HALF_WIDTH + rng.uniform(1.8, 2.2)))))
+                pose = _road_pose(road, s, side * (ROAD_HALF_WIDTH + rng.uniform(1.8, 2.2)))
+                if not in_side_street(s, rc + 0.5):
+                    objs.append(WorldObject(f"tree{len(objs)}", "tree", [trunk, crown], pose))
             s += rng.uniform(8.0, 18.0)
     # parked cars in the parking strips, facing the direction of travel of their side
     placed: dict[int, list[tuple[float, float]]] = {1: [], -1: []}
@@ -267,7 +284,7 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
         side = 1 if rng.random() < 0.5 else -1
         length, width = rng.uniform(3.9, 4.8), rng.uniform(1.7, 1.9)
         s = rng.uniform(s_ego[0] - 15.0, s_ego[-1] + 70.0)
-        if any(abs(s - s2) < (length + l2) / 2 + 0.8 for s2, l2 in placed[side]):
+        if any(abs(s - s2) < (length + l2) / 2 + 0.8 for s2, l2 in placed[side]) or in_side_street(s, length / 2):
             continue
         placed[side].append((s, length))
         parts = _car_parts(rng, length, width)
@@ -278,6 +295,8 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
     lanes = [(0.5 * LANE_WIDTH, 1), (1.5 * LANE_WIDTH, 1), (-0.5 * LANE_WIDTH, -1), (-1.5 * LANE_WIDTH, -1)]
     tracks: dict[float, list[tuple[np.ndarray, float]]] = {lane: [] for lane, _ in lanes}
     tracks[lanes[0][0]].append((s_ego, 5.0))  # the ego car itself, ≈ 2.5 m either side of cam0
+    # the crossing cars first, clear of the ego car; the cars in the lanes are then drawn clear of them
+    crossing = [] if side_street is None else _crossing_cars(cfg, road, side_street, t, s_ego, l_ego, len(objs))
     n_mov, tries = 0, 0
     mid = len(t) // 2
     while n_mov < cfg.moving_cars and tries < 100 * (cfg.moving_cars + 1):
@@ -289,9 +308,73 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
         track = s_mid + direction * v * (t - t[mid])
         if not _clear(track, [o for o, _ in tracks[lane]], [(length + lo) / 2 + 1.5 for _, lo in tracks[lane]]):
             continue
+        if any(_meet(track, lane, length, c) for c in crossing):
+            continue
         tracks[lane].append((track, length))
         parts = _car_parts(rng, length, width)
         poses = np.stack([_road_pose(road, float(sk), lane, flip=direction < 0) for sk in track])
         objs.append(WorldObject(f"mover{len(objs)}", "moving_car", parts, poses, moving=True, speed=float(v)))
         n_mov += 1
+    objs += [c.car for c in crossing]
     return World(road=road, objects=objs, cam0_poses=cam0, fps=cfg.fps)
+
+
+def _side_street(cfg: SynthConfig, seq_index: int, s_ego: np.ndarray) -> tuple[float, np.random.Generator] | None:
+    """Where the side street of the crossing cars meets the road (arclength of its centre line: 12–40 m ahead of
+    the ego car's position halfway through the sequence) and the random stream the crossing cars are drawn from
+    (its own, so that the rest of the world is drawn as without them); None without crossing cars."""
+    if cfg.crossing_cars <= 0:
+        return None
+    rng = np.random.default_rng([int(cfg.seed) & 0xFFFFFFFF, int(cfg.seed) >> 32, seq_index, 0xC2055])
+    return float(s_ego[len(s_ego) // 2] + rng.uniform(12.0, 40.0)), rng
+
+
+@dataclass
+class _Crossing:
+    """A crossing car: its object, the arclength of its side-street lane, its lateral offsets per frame and its
+    length and width (metres)."""
+
+    car: WorldObject
+    s_lane: float
+    lat: np.ndarray
+    length: float
+    width: float
+
+
+def _meet(track: np.ndarray, lane: float | np.ndarray, length: float, c: _Crossing, margin: float = 1.0) -> bool:
+    """Whether a car in the road's lanes (arclengths ``track`` per frame, lateral offset ``lane``, per frame or one
+    for all, ``length``; at most 1.9 m wide) comes within ``margin`` metres of the crossing car ``c`` at any frame."""
+    return bool(np.any((np.abs(track - c.s_lane) < (length + c.width) / 2 + margin)
+                       & (np.abs(c.lat - lane) < (c.length + 1.9) / 2 + margin)))
+
+
+def _crossing_cars(cfg: SynthConfig, road: Road, side_street: tuple[float, np.random.Generator], t: np.ndarray,
+                   s_ego: np.ndarray, l_ego: np.ndarray, first: int) -> list[_Crossing]:
+    """``cfg.crossing_cars`` cars driving along the side street, across the road (the module docstring): each on the
+    right-hand half of the side street for its direction, at U(mover_speed_min, mover_speed_max) m/s, on the road
+    halfway through the sequence; one that would come within a metre of the ego car (arclengths ``s_ego`` and
+    lateral offsets ``l_ego`` per frame, 5 m long) or within 1.5 m of another crossing car in its lane is drawn
+    again (at most 100 tries per car). The cars in the lanes are drawn clear of these afterwards."""
+    s_c, rng = side_street
+    mid = len(t) // 2
+    out: list[_Crossing] = []
+    tries = 0
+    while len(out) < cfg.crossing_cars and tries < 100 * cfg.crossing_cars:
+        tries += 1
+        direction = 1 if rng.random() < 0.5 else -1  # +1: towards +l, the road's right
+        v = rng.uniform(cfg.mover_speed_min, cfg.mover_speed_max)
+        length, width = rng.uniform(3.9, 4.8), rng.uniform(1.7, 1.9)
+        s_lane = s_c - direction * SIDE_STREET_WIDTH / 4  # keeping to the right of its direction of travel
+        lat = rng.uniform(-ROAD_HALF_WIDTH + 2.0, ROAD_HALF_WIDTH - 2.0) + direction * v * (t - t[mid])
+        if _meet(s_ego, l_ego, 5.0, _Crossing(None, s_lane, lat, length, width)):  # type: ignore[arg-type]
+            continue
+        if any(abs(c.s_lane - s_lane) < 0.1 and np.any(np.abs(lat - c.lat) < (length + c.length) / 2 + 1.5)
+               for c in out):
+            continue
+        parts = _car_parts(rng, length, width)
+        x, z = road.point(s_lane, lat)
+        yaw = float(road.heading(s_lane)) + direction * math.pi / 2
+        poses = np.stack([_pose(rot_y(yaw), (float(x[k]), 0.0, float(z[k]))) for k in range(len(t))])
+        car = WorldObject(f"crossing{first + len(out)}", "moving_car", parts, poses, moving=True, speed=float(v))
+        out.append(_Crossing(car, s_lane, lat, length, width))
+    return out

@@ -136,6 +136,66 @@ def test_world_layout_is_sane():
         assert d.min() > 2.0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_crossing_cars_drive_across_the_road_through_a_side_street_and_hit_nothing(seed: int):
+    from pipeline.synth.world import SIDE_STREET_WIDTH
+
+    cfg = SynthConfig(seed=seed, moving_cars=6, parked_cars=12, crossing_cars=3, min_turn_radius=60)
+    w = build_world(cfg, 0, 40)
+    crossing = [o for o in w.objects if o.name.startswith("crossing")]
+    assert len(crossing) == 3 and all(o.moving and o.category == "moving_car" for o in crossing)
+    s_lanes = []
+    for m in crossing:  # at their speed, at right angles to the road, wheels on the road
+        c = m.poses[:, :3, 3]
+        d = np.diff(c, axis=0)
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), m.speed / cfg.fps, rtol=2e-2)  # (an arc's chord)
+        s, l = w.road.to_road(c[:, 0], c[:, 2])
+        assert np.ptp(s) < 0.05 and np.ptp(l) > 0.9 * m.speed * 39 / cfg.fps  # along the side street alone
+        heading = float(w.road.heading(s[0]))
+        along = np.array([math.sin(heading), math.cos(heading)])  # the road's direction in (x, z)
+        assert np.abs(d[:, [0, 2]] @ along).max() < 0.02 * m.speed / cfg.fps
+        np.testing.assert_allclose(c[:, 1], 0.0)
+        forward = m.poses[:, :3, 2][:, [0, 2]]  # the car's own z axis points where it goes
+        assert (np.einsum("fk,fk->f", forward[:-1], d[:, [0, 2]]) > 0).all()
+        assert np.abs(l[len(l) // 2]) < ROAD_HALF_WIDTH  # on the road halfway through
+        s_lanes.append(s[0])
+    s_c = (max(s_lanes) + min(s_lanes)) / 2
+    # no building, parked car, pole or tree stands in the side street
+    for o in w.objects:
+        if o.category in ("building", "parked_car", "pole", "tree") and not o.name.startswith("building_"):
+            c = o.corners(0)
+            if c is None:
+                continue
+            sc, _ = w.road.to_road(c[:, 0], c[:, 2])
+            assert sc.max() < s_c - SIDE_STREET_WIDTH / 2 + 0.3 or sc.min() > s_c + SIDE_STREET_WIDTH / 2 - 0.3, o.name
+    # and no car comes within a metre of another car or of the ego car at any frame
+    cars = [o for o in w.objects if o.category in ("parked_car", "moving_car")]
+    ego = w.cam0_poses[:, :3, 3] + np.array([0.0, cfg.camera_height, 0.0])
+    for k in range(40):
+        corners = [o.corners(k) for o in cars]
+        for m in crossing:
+            mine = m.corners(k)
+            lo, hi = mine.min(0), mine.max(0)
+            assert not ((ego[k] > lo - 1.0) & (ego[k] < hi + 1.0)).all()
+            for o, c in zip(cars, corners):
+                if o is not m:  # axis-aligned boxes around each (cars at right angles: their boxes are their own)
+                    assert (c.min(0) > hi + 0.2).any() or (c.max(0) < lo - 0.2).any(), (m.name, o.name, k)
+
+
+def test_no_crossing_cars_keeps_the_world_and_its_random_stream():
+    """The crossing cars draw from a stream of their own: without them every object is where it was."""
+    a = build_world(SynthConfig(seed=4), 1, 20)
+    b = build_world(SynthConfig(seed=4, crossing_cars=2), 1, 20)
+    named = {o.name: o for o in b.objects}
+    # the objects before the side street's gap are the same; the lanes' movers are drawn by the same stream
+    lane_movers = [o for o in a.objects if o.name.startswith("mover")]
+    assert lane_movers and all(not o.name.startswith("crossing") for o in a.objects)
+    assert sum(o.name.startswith("crossing") for o in b.objects) == 2
+    np.testing.assert_array_equal(a.cam0_poses, b.cam0_poses)
+    kept = [o for o in a.objects if o.name in named and o.category == "building"]
+    assert kept and all(np.array_equal(o.poses, named[o.name].poses) for o in kept[:3])
+
+
 def test_rig_matches_kitti_conventions():
     cfg = SynthConfig(width=832, height=256)
     rig = make_rig(cfg)
