@@ -47,10 +47,8 @@ def sequence_config(cfg: SynthConfig, index: int, split: str) -> SynthConfig:
     mov_lo = _blend(cfg.mover_speed_min, rng.uniform(1.0, 4.0), v)
     mov_hi = max(mov_lo, _blend(cfg.mover_speed_max, rng.uniform(8.0, 16.0), v))
     radius = max(60.0, _blend(cfg.min_turn_radius, rng.uniform(60.0, 300.0), v))
-    crossing = cfg.crossing_cars if cfg.crossing_cars == 0 else int(round(cfg.crossing_cars * rng.uniform(0.25, 2.0)))
-    return replace(
+    drawn = replace(
         cfg,
-        crossing_cars=crossing,
         width=width,
         height=height,
         focal_scale=cfg.focal_scale * scale(0.25),
@@ -66,6 +64,10 @@ def sequence_config(cfg: SynthConfig, index: int, split: str) -> SynthConfig:
         mover_speed_max=mov_hi,
         variety=0.0,
     )
+    if cfg.crossing_cars == 0:
+        return drawn
+    # drawn last, so a sequence's camera, driving and other traffic are those of the world without crossing cars
+    return replace(drawn, crossing_cars=int(round(cfg.crossing_cars * rng.uniform(0.25, 2.0))))
 
 
 def shifted_test_config(seed: int = 1000, **overrides) -> SynthConfig:

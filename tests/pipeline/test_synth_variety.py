@@ -27,6 +27,20 @@ def test_varied_sequences_differ_stay_in_range_and_are_deterministic():
         assert s.variety == 0.0
 
 
+def test_crossing_cars_are_varied_last_and_change_nothing_else():
+    from dataclasses import replace
+
+    plain = SynthConfig(seed=7, variety=1.0, n_sequences=8)
+    crossing = replace(plain, crossing_cars=2)
+    counts = []
+    for i in range(8):
+        a, b = sequence_config(plain, i, "train"), sequence_config(crossing, i, "train")
+        assert a.crossing_cars == 0 and replace(b, crossing_cars=0) == a  # the rest of the draw is the same
+        counts.append(b.crossing_cars)
+    assert min(counts) >= 0 and max(counts) <= 4 and len(set(counts)) > 1  # 2 x U(0.25, 2), rounded
+    assert sequence_config(crossing, 8, "test").crossing_cars == 2  # the test sequence keeps the config's
+
+
 def test_shifted_world_lies_outside_the_training_ranges():
     s = shifted_test_config()
     assert s.n_sequences == 0 and s.test_frames == 20
