@@ -28,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--test-frames", type=int, default=d.test_frames, help="frames of the test sequence, 0 = none")
     p.add_argument("--parked", type=int, default=d.parked_cars, help="parked cars per sequence")
     p.add_argument("--movers", type=int, default=d.moving_cars, help="moving cars per sequence")
+    p.add_argument("--crossing", type=int, default=d.crossing_cars,
+                   help="cars per sequence crossing the road on a side street ahead, at the movers' speeds "
+                        "(default %(default)s)")
     p.add_argument("--mover-speed", type=float, nargs=2, metavar=("MIN", "MAX"),
                    default=(d.mover_speed_min, d.mover_speed_max), help="moving cars' speed range, m/s")
     p.add_argument("--lidar-az-step", type=float, default=d.lidar_azimuth_step_deg,
@@ -54,7 +57,7 @@ def _body(argv: list[str] | None) -> int:
     cfg = replace(
         SynthConfig(),
         seed=a.seed, width=a.width, height=a.height, focal_scale=a.focal_scale, n_sequences=a.sequences,
-        frames=a.frames, test_frames=a.test_frames, parked_cars=a.parked, moving_cars=a.movers,
+        frames=a.frames, test_frames=a.test_frames, parked_cars=a.parked, moving_cars=a.movers, crossing_cars=a.crossing,
         mover_speed_min=a.mover_speed[0], mover_speed_max=a.mover_speed[1],
         lidar_azimuth_step_deg=a.lidar_az_step, test_lidar_azimuth_step_deg=a.test_lidar_az_step,
         supersample=a.supersample, lidar_scans=a.lidar_scans,

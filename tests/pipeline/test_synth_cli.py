@@ -69,6 +69,14 @@ def test_cli_prints_summary_keeps_same_world_and_refuses_a_different_one(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]
 
 
+def test_cli_crossing_cars_are_movers_of_the_world(tmp_path):
+    assert main(["--out", str(tmp_path / "x"), "--seed", "5", "--crossing", "2", *FLAGS]) == 0
+    meta = json.loads((tmp_path / "x" / "synth.json").read_text())
+    assert meta["config"]["crossing_cars"] == 2
+    # the two lane movers and the two crossing ones, in every sequence
+    assert [s["moving_cars"] for s in meta["sequences"].values()] == [4, 4]
+
+
 def test_cli_refuses_a_folder_that_is_not_a_world_and_bad_options(tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
