@@ -54,6 +54,12 @@ class CacheWriter:
                     f"{self.root} holds the cache of another config (hash {header['config_hash']}, "
                     f"this config's is {self.config_hash}); use cache_root() or another folder"
                 )
+            changed = _changed_inputs(header["source"], source)
+            if changed:
+                raise ConfigError(
+                    f"{self.root} was written from other inputs: sequence {changed[0]} of "
+                    f"{source.get('root', 'the dataset')} has changed since; remove that cache folder or write elsewhere"
+                )
         else:
             write_json_atomic(header_path, make_header(config, source, self.config_hash))
         self.removed_tmp: list[Path] = remove_stale_tmp(self.root)
@@ -107,6 +113,14 @@ class CacheWriter:
         ``expected_blocks``: ``{sequence: number of blocks}`` or an iterable of ``(sequence, block_index)``.
         """
         return merge(self.root, expected_blocks)
+
+
+def _changed_inputs(kept: dict, now: dict) -> list[str]:
+    """The sequences whose input fingerprint (``source["inputs"]``, :func:`pipeline.preprocess.identity.
+    input_fingerprint`) differs between the cache's header ``kept`` and this run's ``now``; a cache written before
+    fingerprints existed, or a run without them, compares nothing."""
+    a, b = kept.get("inputs") or {}, now.get("inputs") or {}
+    return sorted(n for n in a.keys() & b.keys() if a[n] != b[n])
 
 
 def _fsync_tree(path: Path) -> None:

@@ -63,12 +63,30 @@ def dataset_name(config: PreprocessConfig) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "dataset"
 
 
+def input_fingerprint(sequence) -> str:
+    """A short digest of what one sequence's inputs hold (an :class:`~pipeline.kitti.odometry.OdometrySequence`): the
+    bytes of its calibration, poses and timestamps and the name and size of every frame image. Cheap (a stat per
+    frame), and it changes when the dataset at the same path is replaced by another (a synthetic world drawn again
+    with another seed or version): a cache written from the former is then not resumed from the latter
+    (:class:`pipeline.cache.writer.CacheWriter`)."""
+    h = hashlib.sha256()
+    for path in (sequence.calib_path, sequence.poses_path, sequence.times_path):
+        h.update(path.name.encode())
+        h.update(path.read_bytes() if path.is_file() else b"-")
+    for i in range(len(sequence)):
+        image = sequence.image_path(i)
+        h.update(f"{image.name}:{image.stat().st_size};".encode())
+    return h.hexdigest()[:16]
+
+
 def cache_source(config: PreprocessConfig, sequences: dict) -> dict[str, Any]:
-    """The manifest's ``source`` record: where the inputs came from (not part of the cache's name).
+    """The manifest's ``source`` record: where the inputs came from (not part of the cache's name), and what they held
+    (``inputs``: :func:`input_fingerprint` per sequence).
 
     ``sequences``: {sequence id: OdometrySequence} as opened by :func:`pipeline.preprocess.sequences.open_sequences`.
     """
     return {
+        "inputs": {n: input_fingerprint(s) for n, s in sequences.items()},
         "dataset": dataset_name(config),
         "root": str(Path(config.root).resolve()),
         "camera": config.camera,
@@ -81,4 +99,4 @@ def cache_source(config: PreprocessConfig, sequences: dict) -> dict[str, Any]:
     }
 
 
-__all__ = ["cache_config", "cache_source", "dataset_name"]
+__all__ = ["cache_config", "cache_source", "dataset_name", "input_fingerprint"]

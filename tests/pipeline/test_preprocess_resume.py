@@ -69,3 +69,28 @@ def test_killed_run_resumes_to_an_identical_cache(synth_root, tmp_path):  # noqa
     assert "manifest.json" in reference and len(reference) > 20
     assert tree_bytes(root) == reference
     assert len(CacheReader(root)) == 8
+
+
+def test_a_cache_of_another_world_at_the_same_path_is_refused_and_the_same_world_resumes(tmp_path, capsys):
+    """Stage one resumes a cache only from the inputs it was written from: a world drawn again at the same path with
+    another seed is refused in one line naming the cache and the sequence; drawn again alike, it is resumed."""
+    from pipeline.cli import main
+    from pipeline.synth import SynthConfig, generate
+
+    world, out = tmp_path / "world", tmp_path / "cache"
+    tiny = dict(width=64, height=32, n_sequences=1, frames=4, test_frames=0, lidar_scans="test")
+    args = ["--root", str(world), "--depth", "gt", "--pose", "gt", "--size", "native", "--progress", "false",
+            "--out", str(out)]
+    generate(SynthConfig(seed=1, **tiny), world)
+    assert main(args) == 0
+    (cache,) = list(out.glob("*/*"))
+    before = tree_bytes(cache)
+    generate(SynthConfig(seed=1, **tiny), world, force=True)  # the same world written again: resumed as it is
+    capsys.readouterr()
+    assert main(args) == 0 and "already done" in capsys.readouterr().out
+    assert tree_bytes(cache) == before
+    generate(SynthConfig(seed=2, **tiny), world, force=True)  # another world at the same path
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(cache) in err[0] and "sequence 00" in err[0] and "changed" in err[0]
+    assert tree_bytes(cache) == before  # nothing of it was touched
