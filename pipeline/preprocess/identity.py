@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import re
 from pathlib import Path
 from typing import Any
 
+from core.errors import ConfigError
 from pipeline.preprocess.config import PreprocessConfig
 
 # Options that change how, where or how fast the cache is written, or where inputs live, not what it holds.
@@ -63,19 +65,36 @@ def dataset_name(config: PreprocessConfig) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "dataset"
 
 
+def _world_identity(root: Path) -> bytes:
+    """What names a synthetic world at ``root`` (its ``synth.json``: generator version and config, the config read
+    through :class:`~pipeline.synth.config.SynthConfig` so that a world written before an option existed counts with
+    its default); ``b"-"`` for a dataset without one (KITTI)."""
+    path = root / "synth.json"
+    if not path.is_file():
+        return b"-"
+    from pipeline.cache.layout import canonical_json
+    from pipeline.synth.config import SynthConfig
+
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        config = SynthConfig.from_dict(meta.get("config") or {}).to_dict()
+        return canonical_json({"version": meta.get("version"), "config": config}).encode()
+    except (ValueError, TypeError, AttributeError, ConfigError):
+        return path.read_bytes()
+
+
 def input_fingerprint(sequence) -> str:
-    """A short digest of what one sequence's inputs hold (an :class:`~pipeline.kitti.odometry.OdometrySequence`): the
-    bytes of its calibration, poses and timestamps and the name and size of every frame image. Cheap (a stat per
-    frame), and it changes when the dataset at the same path is replaced by another (a synthetic world drawn again
-    with another seed or version): a cache written from the former is then not resumed from the latter
-    (:class:`pipeline.cache.writer.CacheWriter`)."""
+    """A short digest of what one sequence's inputs are (an :class:`~pipeline.kitti.odometry.OdometrySequence`): the
+    bytes of its calibration, poses and timestamps, and for a synthetic world the world's identity (its generator
+    version and config). It changes when the dataset at the same path is replaced by another (a world drawn again with
+    another seed or by another generator version, another recording), so a cache written from the former is not
+    resumed from the latter (:class:`pipeline.cache.writer.CacheWriter`); the frames themselves are not read, so a
+    repaired frame file (a truncated PNG written again) does not stop a resume."""
     h = hashlib.sha256()
     for path in (sequence.calib_path, sequence.poses_path, sequence.times_path):
         h.update(path.name.encode())
         h.update(path.read_bytes() if path.is_file() else b"-")
-    for i in range(len(sequence)):
-        image = sequence.image_path(i)
-        h.update(f"{image.name}:{image.stat().st_size};".encode())
+    h.update(_world_identity(sequence.root))
     return h.hexdigest()[:16]
 
 

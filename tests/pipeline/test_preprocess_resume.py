@@ -94,3 +94,22 @@ def test_a_cache_of_another_world_at_the_same_path_is_refused_and_the_same_world
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(cache) in err[0] and "sequence 00" in err[0] and "changed" in err[0]
     assert tree_bytes(cache) == before  # nothing of it was touched
+
+
+def test_the_input_digest_reads_the_world_s_identity_not_its_frames(synth_root, tmp_path):
+    import json
+    import shutil
+
+    from pipeline.kitti.odometry import OdometrySequence
+    from pipeline.preprocess.identity import input_fingerprint
+
+    root = tmp_path / "world"
+    shutil.copytree(synth_root, root)
+    first = input_fingerprint(OdometrySequence(root, "00"))
+    image = root / "sequences/00/image_2/000003.png"
+    image.write_bytes(image.read_bytes()[:100])  # a frame damaged (and later repaired): the same inputs
+    assert input_fingerprint(OdometrySequence(root, "00")) == first
+    meta = json.loads((root / "synth.json").read_text())
+    meta["version"] = "another"  # the same seed and config drawn by another generator version: other inputs
+    (root / "synth.json").write_text(json.dumps(meta))
+    assert input_fingerprint(OdometrySequence(root, "00")) != first
