@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import re
 from pathlib import Path
 from typing import Any
 
-from core.errors import ConfigError
 from pipeline.preprocess.config import PreprocessConfig
 
 # Options that change how, where or how fast the cache is written, or where inputs live, not what it holds.
@@ -66,21 +64,17 @@ def dataset_name(config: PreprocessConfig) -> str:
 
 
 def _world_identity(root: Path) -> bytes:
-    """What names a synthetic world at ``root`` (its ``synth.json``: generator version and config, the config read
-    through :class:`~pipeline.synth.config.SynthConfig` so that a world written before an option existed counts with
-    its default); ``b"-"`` for a dataset without one (KITTI)."""
-    path = root / "synth.json"
-    if not path.is_file():
-        return b"-"
+    """What names a synthetic world at ``root`` (:func:`pipeline.synth.generator.world_identity`: generator version
+    and config from its ``synth.json``); the file's bytes where that is unreadable, ``b"-"`` for a dataset without
+    one (KITTI)."""
     from pipeline.cache.layout import canonical_json
-    from pipeline.synth.config import SynthConfig
+    from pipeline.synth.generator import world_identity
 
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-        config = SynthConfig.from_dict(meta.get("config") or {}).to_dict()
-        return canonical_json({"version": meta.get("version"), "config": config}).encode()
-    except (ValueError, TypeError, AttributeError, ConfigError):
-        return path.read_bytes()
+    ident = world_identity(root)
+    if ident is not None:
+        return canonical_json(ident).encode()
+    path = root / "synth.json"
+    return path.read_bytes() if path.is_file() else b"-"
 
 
 def input_fingerprint(sequence) -> str:

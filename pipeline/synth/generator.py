@@ -85,15 +85,30 @@ def _identity(cfg: SynthConfig) -> dict:
     return {"generator": "monoflow-synth", "version": SYNTH_VERSION, "config": cfg.to_dict()}
 
 
-def _same_world(meta: dict, ident: dict) -> bool:
-    """Whether the world described by ``meta`` (its ``synth.json``) is the one ``ident`` would write. Its config
-    is read through :class:`SynthConfig`, so a world written before an option existed counts with that option's
-    default (what it was made with)."""
+def identity_of(meta: dict) -> dict | None:
+    """The identity a world's ``synth.json`` (``meta``) records, in :func:`_identity`'s form: generator, version and
+    config, the config read through :class:`SynthConfig`, so a world written before an option existed counts with
+    that option's default (what it was made with); None when the file holds no readable config."""
+    if not isinstance(meta, dict):
+        return None
     try:
         config = SynthConfig.from_dict(meta.get("config") or {}).to_dict()
     except (ConfigError, TypeError):
-        return False
-    return {**{k: meta.get(k) for k in ident}, "config": config} == ident
+        return None
+    return {"generator": meta.get("generator"), "version": meta.get("version"), "config": config}
+
+
+def world_identity(root: str | Path) -> dict | None:
+    """:func:`identity_of` the world at ``root``; None where it has no readable ``synth.json`` (not a synthetic
+    world, e.g. KITTI)."""
+    meta = _existing(Path(root))
+    return None if meta is None else identity_of(meta)
+
+
+def _same_world(meta: dict, ident: dict) -> bool:
+    """Whether the world described by ``meta`` (its ``synth.json``) is the one ``ident`` would write
+    (:func:`identity_of`)."""
+    return identity_of(meta) == ident
 
 
 def _existing(root: Path) -> dict | None:
