@@ -182,13 +182,13 @@ def object_motion(rng: np.random.Generator, points: np.ndarray, cfg: RealRigidCo
     return M
 
 
-def mover_clusters(whole: np.ndarray, keep: np.ndarray, min_points: int) -> list[np.ndarray]:
+def mover_clusters(whole: np.ndarray, kept: np.ndarray, min_points: int) -> list[np.ndarray]:
     """The clusters that may be moved: the object-sized clusters (:func:`core.clusters.object_clusters`) of
-    ``whole[keep]`` with at least ``min_points`` points, each as indices into ``whole``."""
+    ``whole[kept]`` (``kept``: indices into ``whole``) with at least ``min_points`` points, each as indices into
+    ``whole``."""
     from core.clusters import object_clusters
 
-    kept = np.flatnonzero(keep)
-    return [kept[o] for o in object_clusters(whole[keep]) if len(o) >= min_points]
+    return [kept[o] for o in object_clusters(whole[kept]) if len(o) >= min_points]
 
 
 def moved_scene(rng: np.random.Generator, whole: np.ndarray, clusters: list[np.ndarray],
@@ -241,8 +241,8 @@ def build_split(cfg: RealRigidConfig) -> int:
     from pipeline.synth.writer import frame_name, save_npz
 
     whole, sensor = scan_points(cfg.scan, cfg.calib)
-    keep = split_keep(whole, cfg.ground_y, cfg.max_depth)
-    points = whole[keep]
+    kept = np.flatnonzero(split_keep(whole, cfg.ground_y, cfg.max_depth))  # the scan's points within the cuts
+    points = whole[kept]
     if len(points) < 64:
         raise InputError(Path(cfg.scan), f"only {len(points)} non-ground points within {cfg.max_depth} m")
     out = Path(cfg.out)
@@ -253,7 +253,7 @@ def build_split(cfg: RealRigidConfig) -> int:
     rng = np.random.default_rng(cfg.seed)
     axes = FORMAT_AXES["flownet3d"]
     half = len(points) // 2
-    clusters = mover_clusters(whole, keep, cfg.mover_min_points) if cfg.movers > 0 else []
+    clusters = mover_clusters(whole, kept, cfg.mover_min_points) if cfg.movers > 0 else []
     if cfg.movers > 0 and not clusters:
         raise InputError(Path(cfg.scan), f"no object-sized cluster of {cfg.mover_min_points} or more points to move")
     if cfg.rescan:  # frame t is scanned from the same sensor position for every pair: once
@@ -270,7 +270,6 @@ def build_split(cfg: RealRigidConfig) -> int:
             second = ring_scan(transform_points(T, later), sensor, cfg.ring_deg, cfg.azimuth_deg)
             second = second[split_keep(second, cfg.ground_y, cfg.max_depth)]
         else:
-            kept = np.flatnonzero(keep)
             source, first = kept[order[:half]], points[order[:half]]
             second = transform_points(T, later[kept[order[half:]]])
         # with movers, which one each point lies on (instance, −1: static), as the synthetic splits write it

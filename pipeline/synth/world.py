@@ -308,14 +308,14 @@ def build_world(cfg: SynthConfig, seq_index: int, n_frames: int) -> World:
         track = s_mid + direction * v * (t - t[mid])
         if not _clear(track, [o for o, _ in tracks[lane]], [(length + lo) / 2 + 1.5 for _, lo in tracks[lane]]):
             continue
-        if any(_meet(track, lane, length, c) for c in crossing):
+        if any(_meet(track, lane, length, c) for c, _ in crossing):
             continue
         tracks[lane].append((track, length))
         parts = _car_parts(rng, length, width)
         poses = np.stack([_road_pose(road, float(sk), lane, flip=direction < 0) for sk in track])
         objs.append(WorldObject(f"mover{len(objs)}", "moving_car", parts, poses, moving=True, speed=float(v)))
         n_mov += 1
-    objs += [c.car for c in crossing]
+    objs += [car for _, car in crossing]
     return World(road=road, objects=objs, cam0_poses=cam0, fps=cfg.fps)
 
 
@@ -331,10 +331,9 @@ def _side_street(cfg: SynthConfig, seq_index: int, s_ego: np.ndarray) -> tuple[f
 
 @dataclass
 class _Crossing:
-    """A crossing car: its object, the arclength of its side-street lane, its lateral offsets per frame and its
-    length and width (metres)."""
+    """A crossing car's path: the arclength of its side-street lane, its lateral offsets per frame and its length
+    and width (metres)."""
 
-    car: WorldObject
     s_lane: float
     lat: np.ndarray
     length: float
@@ -349,15 +348,16 @@ def _meet(track: np.ndarray, lane: float | np.ndarray, length: float, c: _Crossi
 
 
 def _crossing_cars(cfg: SynthConfig, road: Road, side_street: tuple[float, np.random.Generator], t: np.ndarray,
-                   s_ego: np.ndarray, l_ego: np.ndarray, first: int) -> list[_Crossing]:
+                   s_ego: np.ndarray, l_ego: np.ndarray, first: int) -> list[tuple[_Crossing, WorldObject]]:
     """``cfg.crossing_cars`` cars driving along the side street, across the road (the module docstring): each on the
     right-hand half of the side street for its direction, at U(mover_speed_min, mover_speed_max) m/s, on the road
     halfway through the sequence; one that would come within a metre of the ego car (arclengths ``s_ego`` and
     lateral offsets ``l_ego`` per frame, 5 m long) or within 1.5 m of another crossing car in its lane is drawn
-    again (at most 100 tries per car). The cars in the lanes are drawn clear of these afterwards."""
+    again (at most 100 tries per car). The cars in the lanes are drawn clear of these afterwards. Returns each car's
+    path and its object."""
     s_c, rng = side_street
     mid = len(t) // 2
-    out: list[_Crossing] = []
+    out: list[tuple[_Crossing, WorldObject]] = []
     tries = 0
     while len(out) < cfg.crossing_cars and tries < 100 * cfg.crossing_cars:
         tries += 1
@@ -366,15 +366,16 @@ def _crossing_cars(cfg: SynthConfig, road: Road, side_street: tuple[float, np.ra
         length, width = rng.uniform(3.9, 4.8), rng.uniform(1.7, 1.9)
         s_lane = s_c - direction * SIDE_STREET_WIDTH / 4  # keeping to the right of its direction of travel
         lat = rng.uniform(-ROAD_HALF_WIDTH + 2.0, ROAD_HALF_WIDTH - 2.0) + direction * v * (t - t[mid])
-        if _meet(s_ego, l_ego, 5.0, _Crossing(None, s_lane, lat, length, width)):  # type: ignore[arg-type]
+        path = _Crossing(s_lane, lat, length, width)
+        if _meet(s_ego, l_ego, 5.0, path):
             continue
         if any(abs(c.s_lane - s_lane) < 0.1 and np.any(np.abs(lat - c.lat) < (length + c.length) / 2 + 1.5)
-               for c in out):
+               for c, _ in out):
             continue
         parts = _car_parts(rng, length, width)
         x, z = road.point(s_lane, lat)
         yaw = float(road.heading(s_lane)) + direction * math.pi / 2
         poses = np.stack([_pose(rot_y(yaw), (float(x[k]), 0.0, float(z[k]))) for k in range(len(t))])
         car = WorldObject(f"crossing{first + len(out)}", "moving_car", parts, poses, moving=True, speed=float(v))
-        out.append(_Crossing(car, s_lane, lat, length, width))
+        out.append((path, car))
     return out

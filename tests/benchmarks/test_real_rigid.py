@@ -116,7 +116,8 @@ def test_movers_carry_their_own_motion_onto_frame_t1_and_leave_the_rest_static(s
     cfg = _cfg(shared_data, tmp_path / "movers", pairs=3, rescan=rescan, movers=2, seed=3)
     build_split(cfg)
     whole, _ = scan_points(cfg.scan, cfg.calib)
-    clusters = mover_clusters(whole, split_keep(whole, cfg.ground_y, cfg.max_depth), cfg.mover_min_points)
+    clusters = mover_clusters(whole, np.flatnonzero(split_keep(whole, cfg.ground_y, cfg.max_depth)),
+                              cfg.mover_min_points)
     assert len(clusters) >= 2  # the scan's cars and posts: there is something to move
     split = load_split(str(tmp_path / "movers"), "auto")
     for i in range(3):
