@@ -40,6 +40,8 @@ PARTS: dict[str, dict[str, object]] = {
                 "eval_evidence_dense": True},
     "alldfkxg": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
                  "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3},
+    "alldfkxgf": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
+                  "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
@@ -47,7 +49,9 @@ frame 2's whole input (``rigid_vote_dense``), ``alldf`` and its choice weighed b
 ``alldfk`` that with the gate reading each point's 16 nearest points (``eval_gate_k`` 16: the preset's
 anchor since the twenty-second round), ``alldfkx`` that with the evidence test read against frame 2's whole
 input (``eval_evidence_dense``: the preset's since the thirty-fourth round), ``alldfkxg`` that with the vote's
-choice made by its mean gap (``rigid_vote_gap_m`` 0.3 m: the preset's since the thirty-fifth round), ``none`` the
+choice made by its mean gap (``rigid_vote_gap_m`` 0.3 m: the preset's since the thirty-fifth round), ``alldfkxgf``
+that with its hypotheses also started along the optical axis (``rigid_vote_forward``: the preset's since the
+thirty-seventh round), ``none`` the
 net without any of them."""
 
 

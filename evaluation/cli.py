@@ -140,6 +140,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "mean gap to frame 2, each gap truncated here (model.rigid_vote_gap_m, inference only; needs "
                         "the anchor or the rigid vote): as trained, or a number (0 = by the points each explains, "
                         "0.3 = the demo preset's); a change is named in the row")
+    r.add_argument("--vote-forward", default="as-trained", choices=tuple(AS_TRAINED),
+                   help="each checkpoint's rigid vote also starts its hypotheses along the camera's optical axis "
+                        "(model.rigid_vote_forward, inference only; needs the anchor or the rigid vote): on, off, "
+                        "or as trained, so a net trained before the option existed can use it; a change is named "
+                        "in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -272,7 +277,7 @@ def _run(args) -> int:
     vote_gap = None if args.vote_gap == "as-trained" else _number("--vote-gap", args.vote_gap, "metres")
     dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
-                      vote_gap=vote_gap) for c in args.checkpoint]
+                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward]) for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

@@ -81,11 +81,15 @@ class NetMethod:
     evidence test against frame 2's whole input; thirty-fourth round), named (", dense evidence" / ", L0 evidence").
     ``vote_gap`` (metres, 0 = off) overrides the inference-only ``model.rigid_vote_gap_m`` (the rigid vote's choice
     by the mean gap to frame 2; thirty-fifth round), named (", vote by gap 0.3 m" / ", vote by count").
+    ``vote_forward`` (true / false) overrides the inference-only ``model.rigid_vote_forward`` (the rigid vote's
+    hypotheses also started along the optical axis; thirty-seventh round), named (", forward starts" / ", no forward
+    starts").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
-                 evidence_dense: bool | None = None, vote_gap: float | None = None) -> None:
+                 evidence_dense: bool | None = None, vote_gap: float | None = None,
+                 vote_forward: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -122,6 +126,9 @@ class NetMethod:
         if override("rigid_vote_gap_m", vote_gap, "rigid vote to choose by its gap",
                     lambda c: replace(c, rigid_vote_gap_m=float(vote_gap))):
             suffix += f", vote by gap {vote_gap:g} m" if vote_gap else ", vote by count"
+        if override("rigid_vote_forward", vote_forward, "rigid vote to start along the optical axis",
+                    lambda c: replace(c, rigid_vote_forward=bool(vote_forward))):
+            suffix += ", forward starts" if vote_forward else ", no forward starts"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)

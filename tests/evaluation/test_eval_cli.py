@@ -403,6 +403,28 @@ def test_the_votes_choice_by_gap_can_be_set_for_a_trained_net_and_names_the_row(
     assert [r["method"] for r in rows] == ["ours (run, step 3, vote by gap 0.3 m)"]
 
 
+def test_the_votes_forward_starts_can_be_set_for_a_trained_net_and_name_the_row(world: Path, tmp_path: Path) -> None:
+    """``--vote-forward`` / ``NetMethod(vote_forward=…)``: an anchored net trained before the switch existed scored
+    with the rigid vote's forward starts (named, for inference only); a net without a rigid vote: one error line."""
+    from core.errors import ConfigError
+
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
+    plain, forward = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_forward=True)
+    assert not plain.net.config.rigid_vote_forward and forward.net.config.rigid_vote_forward
+    assert forward.name == "ours (run, step 3, forward starts)"
+    assert NetMethod(path, device="cpu", vote_forward=False).name == plain.name
+    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
+    assert np.isfinite(forward(scene.pc1, scene.pc2)).all()
+    bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
+    with pytest.raises(ConfigError, match="rigid_vote_forward"):
+        NetMethod(bare, device="cpu", vote_forward=True)
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--vote-forward", "on", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, forward starts)"]
+
+
 def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
     """``--evidence-dense`` / ``NetMethod(evidence_dense=…)``: an anchored net trained before the switch existed
     scored with it (named, the config changed for inference only); a net whose anchor is forced off has no

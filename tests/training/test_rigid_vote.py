@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -103,6 +104,40 @@ def test_by_its_gap_the_vote_picks_the_motion_that_brings_frame_one_nearest_fram
         assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08
 
 
+@pytest.mark.parametrize("gap", [0.0, 0.3])
+def test_forward_starts_reach_the_camera_motion_when_every_peak_lies_to_the_side(monkeypatch, gap):
+    """``forward_starts``: each hypothesis is also started with its translation along the optical axis alone. Here
+    every histogram maximum is made to lie 2.5 m to the side and 1.5 m above the camera's translation (beyond the
+    rounds' widest radius): from the vote's own starts the camera motion is lost; with the forward starts added it
+    is found, whether the choice counts the points each motion explains or weighs its gap."""
+    import training.model.rigid_vote as rv
+
+    real = rv.vote_hypotheses
+    aside = torch.tensor([2.5, -1.5, 0.0])
+    monkeypatch.setattr(rv, "vote_hypotheses", lambda *a, **k: real(*a, **k)._replace(t=real(*a, **k).t + aside))
+    R_true, t_true = _turn(1.0), torch.tensor([0.0, 0.0, 1.2])
+    pc1 = _street(900)
+    pc2 = _street(900, seed=1) @ R_true.T + t_true
+    cfg = RigidVoteConfig(range_weighted=True, yaw_search_deg=6.0, choose_gap_m=gap)
+    R, t = vote_rigid(pc1, pc2, cfg)
+    assert _static_error(R[0], t[0], pc1[0], R_true, t_true) > 0.5
+    R, t = vote_rigid(pc1, pc2, replace(cfg, forward_starts=True))
+    assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08
+
+
+def test_forward_starts_are_only_added_a_camera_moving_sideways_keeps_its_motion():
+    """A camera whose translation is mostly sideways (1 m across, 0.4 m along its axis): the forward starts are
+    wrong for it, and the choice keeps the vote's own hypothesis, as without them."""
+    R_true, t_true = _turn(-1.5), torch.tensor([1.0, 0.0, 0.4])
+    pc1 = _street(900)
+    pc2 = _street(900, seed=1) @ R_true.T + t_true
+    for gap in (0.0, 0.3):
+        cfg = RigidVoteConfig(range_weighted=True, yaw_search_deg=6.0, choose_gap_m=gap)
+        for forward in (False, True):
+            R, t = vote_rigid(pc1, pc2, replace(cfg, forward_starts=forward))
+            assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08, (gap, forward)
+
+
 def test_the_mean_gap_truncates_and_weighs():
     from training.model.rigid_vote import mean_gap
 
@@ -162,6 +197,11 @@ def test_bad_settings_are_refused():
         HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_gap_m=-0.3)
     anchored = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True, rigid_vote_gap_m=0.3)
     assert anchored.without_anchor().rigid_vote_gap_m == 0  # no vote left to choose
+    with pytest.raises(ConfigError, match="rigid_vote_forward"):
+        HALFlowConfig(translation_vote=True, rigid_vote_forward=True)
+    forward = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
+                            rigid_vote_forward=True)
+    assert not forward.without_anchor().rigid_vote_forward  # no vote left to start
 
 
 ORIGIN = torch.zeros(1, 3, dtype=torch.float64)

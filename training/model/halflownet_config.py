@@ -78,6 +78,12 @@ class HALFlowConfig:
         ``choose_gap_m``). Within one L0 sample spacing a big mover's motion can explain as many points as the
         camera's; the mean gap still tells them apart (docs/learned-flow.md, thirty-fifth round). Needs
         ``rigid_vote`` or ``eval_anchor``; 0 = by the points each explains (``rigid_vote_far``'s weights).
+    rigid_vote_forward: the rigid vote also starts each of its hypotheses with the translation along the camera's
+        optical axis alone (x and y set to zero), beside the hypothesis itself, and its choice picks among both
+        (:class:`~training.model.rigid_vote.RigidVoteConfig` ``forward_starts``). In traffic crossing the view
+        the histogram's maxima can all lie to the side of the camera's translation, and the rounds from there
+        settle in a turn paired with a sideways shift (docs/learned-flow.md, thirty-seventh round). Inference
+        only in the demo preset; needs ``rigid_vote`` or ``eval_anchor``; false = the vote's hypotheses alone.
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -178,6 +184,7 @@ class HALFlowConfig:
     rigid_vote_far: bool = False
     rigid_vote_yaw_deg: float = 0.0
     rigid_vote_gap_m: float = 0.0
+    rigid_vote_forward: bool = False
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -224,7 +231,7 @@ class HALFlowConfig:
             raise ConfigError("model.ego_l0_hold_from 'vote' holds the vote's motion: it needs model.translation_vote")
         if self.rigid_vote and not self.translation_vote:
             raise ConfigError("model.rigid_vote extends the translation vote: it needs model.translation_vote true")
-        for name in ("rigid_vote_dense", "rigid_vote_far"):
+        for name in ("rigid_vote_dense", "rigid_vote_far", "rigid_vote_forward"):
             if getattr(self, name) and not (self.rigid_vote or self.eval_anchor):
                 raise ConfigError(f"model.{name} changes the rigid vote: it needs model.rigid_vote or "
                                   "model.eval_anchor")
@@ -288,15 +295,16 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m``
-        where no rigid vote is left and ``eval_evidence_dense`` where no evidence test is."""
+        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
+        ``rigid_vote_forward`` where no rigid vote is left and ``eval_evidence_dense`` where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
                        rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0,
-                       rigid_vote_gap_m=self.rigid_vote_gap_m if keep_vote else 0.0)
+                       rigid_vote_gap_m=self.rigid_vote_gap_m if keep_vote else 0.0,
+                       rigid_vote_forward=self.rigid_vote_forward and keep_vote)
 
     @property
     def output_points(self) -> tuple[int, ...]:
