@@ -114,7 +114,12 @@ def test_forward_starts_reach_the_camera_motion_when_every_peak_lies_to_the_side
 
     real = rv.vote_hypotheses
     aside = torch.tensor([2.5, -1.5, 0.0])
-    monkeypatch.setattr(rv, "vote_hypotheses", lambda *a, **k: real(*a, **k)._replace(t=real(*a, **k).t + aside))
+
+    def voted_aside(*args, **kwargs):
+        h = real(*args, **kwargs)
+        return h._replace(t=h.t + aside)
+
+    monkeypatch.setattr(rv, "vote_hypotheses", voted_aside)
     R_true, t_true = _turn(1.0), torch.tensor([0.0, 0.0, 1.2])
     pc1 = _street(900)
     pc2 = _street(900, seed=1) @ R_true.T + t_true
