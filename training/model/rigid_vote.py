@@ -13,8 +13,8 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
 1. ``T ← (Θ, t)`` for each of the vote's refined hypotheses ``t`` (its fullest histogram maxima); with
    ``forward_starts`` also ``T ← (Θ, (0, 0, t_z))`` for each: the camera moving along its optical axis (z), as a
    vehicle's forward camera does within one frame (sideways or up, at most a few centimetres). Between two
-   sparse samples, in traffic crossing the view, the histogram's maxima can all lie 0.3–0.6 m to the side or
-   above the camera's translation, and the rounds from there settle in a turn paired with a sideways shift
+   sparse samples, in traffic crossing the view, the histogram's maxima can all lie 0.2–0.7 m to the side and
+   0.3–0.6 m above or below the camera's translation, and the rounds from there settle in a turn paired with a sideways shift
    that fits the near scene and misses the far one (static error 0.2–0.55 m on a third of one test world's
    scenes); from the forward start they reach the camera's motion (docs/learned-flow.md, thirty-seventh
    round). Those starts are only added: the choice (step 4) still decides, so a cloud whose camera moves
