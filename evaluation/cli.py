@@ -145,6 +145,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(model.rigid_vote_forward, inference only; needs the anchor or the rigid vote): on, off, "
                         "or as trained, so a net trained before the option existed can use it; a change is named "
                         "in the row")
+    r.add_argument("--vote-density", default="as-trained",
+                   help="metres: each checkpoint's rigid vote also refines its starts with every frame-1 point "
+                        "weighed by one over the number of frame-1 points within this radius of it "
+                        "(model.rigid_vote_density_m, inference only; needs the anchor or the rigid vote): as "
+                        "trained, or a number (0 = off, 0.62 = the demo preset's); a change is named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -275,9 +280,11 @@ def _run(args) -> int:
     anchor = AS_TRAINED[args.eval_anchor]
     turn_scan = None if args.turn_scan == "as-trained" else _number("--turn-scan", args.turn_scan)
     vote_gap = None if args.vote_gap == "as-trained" else _number("--vote-gap", args.vote_gap, "metres")
+    density = None if args.vote_density == "as-trained" else _number("--vote-density", args.vote_density, "metres")
     dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
-                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward]) for c in args.checkpoint]
+                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density)
+            for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
     baselines = list(dict.fromkeys(_csv(args.baselines)))

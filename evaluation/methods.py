@@ -83,13 +83,15 @@ class NetMethod:
     by the mean gap to frame 2; thirty-fifth round), named (", vote by gap 0.3 m" / ", vote by count").
     ``vote_forward`` (true / false) overrides the inference-only ``model.rigid_vote_forward`` (the rigid vote's
     hypotheses also started along the optical axis; thirty-seventh round), named (", forward starts" / ", no forward
-    starts").
+    starts"). ``vote_density`` (metres, 0 = off) overrides the inference-only ``model.rigid_vote_density_m`` (the rigid
+    vote's starts also refined with each point weighed by its neighbourhood's density; thirty-eighth round), named
+    (", density rounds 0.62 m" / ", uniform rounds").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
                  evidence_dense: bool | None = None, vote_gap: float | None = None,
-                 vote_forward: bool | None = None) -> None:
+                 vote_forward: bool | None = None, vote_density: float | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -129,6 +131,9 @@ class NetMethod:
         if override("rigid_vote_forward", vote_forward, "rigid vote to start along the optical axis",
                     lambda c: replace(c, rigid_vote_forward=bool(vote_forward))):
             suffix += ", forward starts" if vote_forward else ", no forward starts"
+        if override("rigid_vote_density_m", vote_density, "rigid vote to weigh its rounds by density",
+                    lambda c: replace(c, rigid_vote_density_m=float(vote_density))):
+            suffix += f", density rounds {vote_density:g} m" if vote_density else ", uniform rounds"
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)

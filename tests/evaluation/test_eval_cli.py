@@ -425,6 +425,31 @@ def test_the_votes_forward_starts_can_be_set_for_a_trained_net_and_name_the_row(
     assert [r["method"] for r in rows] == ["ours (run, step 3, forward starts)"]
 
 
+def test_the_votes_density_rounds_can_be_set_for_a_trained_net_and_name_the_row(world: Path, tmp_path: Path) -> None:
+    """``--vote-density`` / ``NetMethod(vote_density=…)``: an anchored net trained before the option existed scored
+    with the rigid vote's rounds also weighed by density (named, for inference only); 0 leaves it as trained; a net
+    without a rigid vote, or a radius below zero: one error naming the option."""
+    from core.errors import ConfigError
+
+    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
+    plain, dense = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_density=0.62)
+    assert plain.net.config.rigid_vote_density_m == 0 and dense.net.config.rigid_vote_density_m == 0.62
+    assert dense.name == "ours (run, step 3, density rounds 0.62 m)"
+    assert NetMethod(path, device="cpu", vote_density=0).name == plain.name
+    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
+    assert np.isfinite(dense(scene.pc1, scene.pc2)).all()
+    bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
+    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
+        NetMethod(bare, device="cpu", vote_density=0.62)
+    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
+        NetMethod(path, device="cpu", vote_density=-1.0)
+    out = tmp_path / "eval"
+    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
+                 "--vote-density", "0.62", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["ours (run, step 3, density rounds 0.62 m)"]
+
+
 def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
     """``--evidence-dense`` / ``NetMethod(evidence_dense=…)``: an anchored net trained before the switch existed
     scored with it (named, the config changed for inference only); a net whose anchor is forced off has no

@@ -14,7 +14,7 @@ from core.errors import ConfigError
 from training.config import level_points_for
 from training.model.halflownet import HALFlowNet
 from training.model.halflownet_config import HALFlowConfig
-from training.model.rigid_vote import RigidVoteConfig, turn_scan, vote_rigid
+from training.model.rigid_vote import RigidVoteConfig, density_weights, trimmed_rounds, turn_scan, vote_rigid
 from training.model.translation_vote import vote_translation
 
 
@@ -143,6 +143,66 @@ def test_forward_starts_are_only_added_a_camera_moving_sideways_keeps_its_motion
             assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08, (gap, forward)
 
 
+def _street_behind_a_car(seed: int, car_points: int = 800, poles: int = 400) -> tuple[torch.Tensor, torch.Tensor]:
+    """(walls and poles (K, 3), a car's rear face (car_points, 3)): two walls along the camera's path (x = ±6 m,
+    z 5–35 m, which hold no motion along z), thin poles beside them every 4.5 m from 8 to 30.5 m (which do), and
+    the rear face of a car 10 m ahead, 2 m wide, sampled twice as densely as the poles; camera frame, metres.
+    ``seed`` draws another sample of the same surfaces."""
+    g = torch.Generator().manual_seed(seed)
+    u, v, w = torch.rand(300, 3, generator=g), torch.rand(poles, 3, generator=g), torch.rand(car_points, 3, generator=g)
+    side = torch.where(torch.arange(300) % 2 == 0, -6.0, 6.0)
+    walls = torch.stack([side, 2 * u[:, 1] - 1, 5 + 30 * u[:, 2]], -1)
+    k = (v[:, 2] * 6).floor()
+    pole = torch.stack([torch.where(k % 2 == 0, -5.0, 5.0) + 0.1 * v[:, 0], 2 * v[:, 1] - 1, 8 + 4.5 * k], -1)
+    car = torch.stack([2 * w[:, 0] - 1, 1.5 * w[:, 1] - 0.5, torch.full_like(w[:, 2], 10.0)], -1)
+    return torch.cat([walls, pole]), car
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_density_rounds_keep_the_camera_motion_where_a_dense_car_ahead_pulls_the_uniform_rounds(seed):
+    """``density_rounds_m``: a car 10 m ahead drives 0.2 m a frame faster than the camera (1.2 m) along a street
+    whose walls hold no motion along it; its rear face holds twice the poles' points. The uniform rounds, even
+    started at the true motion, settle at the car's; with the starts also refined with each point weighed by one
+    over its neighbours within 0.62 m, the poles fix the motion and the choice takes it."""
+    t_true, car_own = torch.tensor([0.0, 0.0, -1.2]), torch.tensor([0.0, 0.0, 0.2])
+    static1, car1 = _street_behind_a_car(2 * seed)
+    static2, car2 = _street_behind_a_car(2 * seed + 1)
+    pc1 = torch.cat([static1, car1])[None]
+    pc2 = torch.cat([static2 + t_true, car2 + t_true + car_own])[None]
+    cfg = RigidVoteConfig(range_weighted=True, choose_gap_m=0.3)
+    R, t, _ = trimmed_rounds(pc1.double(), pc2.double(), torch.eye(3, dtype=torch.float64)[None],
+                             t_true.double()[None], cfg)
+    assert _static_error(R[0].float(), t[0].float(), static1, torch.eye(3), t_true) > 0.15  # from the truth
+    R, t = vote_rigid(pc1, pc2, cfg)
+    assert _static_error(R[0], t[0], static1, torch.eye(3), t_true) > 0.15
+    R, t = vote_rigid(pc1, pc2, replace(cfg, density_rounds_m=0.62))
+    assert _static_error(R[0], t[0], static1, torch.eye(3), t_true) < 0.1
+
+
+def test_density_rounds_are_only_added_a_street_without_movers_keeps_its_motion():
+    """With nothing moving, the rounds weighed by density are offered beside the uniform ones and the motion stays
+    as found without them (a turned street, frame 2 another sample of its surfaces)."""
+    R_true, t_true = _turn(-1.5), torch.tensor([0.05, 0.0, 1.2])
+    pc1 = _street(900)
+    pc2 = _street(900, seed=1) @ R_true.T + t_true
+    cfg = RigidVoteConfig(range_weighted=True, yaw_search_deg=6.0, choose_gap_m=0.3, forward_starts=True)
+    for density in (0.0, 0.62):
+        R, t = vote_rigid(pc1, pc2, replace(cfg, density_rounds_m=density))
+        assert _static_error(R[0], t[0], pc1[0], R_true, t_true) < 0.08, density
+
+
+def test_density_weights_give_every_occupied_neighbourhood_about_one():
+    """Each point weighs one over its cloud's points within the radius (itself included): 50 points in one spot
+    weigh 1/50 each, a lone point 1; each cloud of a batch on its own."""
+    spot = torch.zeros(50, 3) + torch.linspace(0, 0.1, 50)[:, None]
+    lone = torch.tensor([[5.0, 0.0, 0.0]])
+    cloud = torch.cat([spot, lone])
+    w = density_weights(torch.stack([cloud, cloud * 10]), 0.62)
+    assert w.shape == (2, 51)
+    torch.testing.assert_close(w[0], torch.cat([torch.full((50,), 1 / 50), torch.ones(1)]))
+    assert float(w[1, :50].sum()) > 1.0 and float(w[1, 50]) == 1.0  # spread ten times wider: fewer neighbours each
+
+
 def test_the_mean_gap_truncates_and_weighs():
     from training.model.rigid_vote import mean_gap
 
@@ -207,6 +267,15 @@ def test_bad_settings_are_refused():
     forward = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
                             rigid_vote_forward=True)
     assert not forward.without_anchor().rigid_vote_forward  # no vote left to start
+    with pytest.raises(ValueError):
+        RigidVoteConfig(density_rounds_m=-0.1)
+    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
+        HALFlowConfig(translation_vote=True, rigid_vote_density_m=0.62)
+    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
+        HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_density_m=-0.62)
+    dense = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
+                          rigid_vote_density_m=0.62)
+    assert dense.without_anchor().rigid_vote_density_m == 0  # no vote left to refine
 
 
 ORIGIN = torch.zeros(1, 3, dtype=torch.float64)

@@ -291,7 +291,8 @@ class HALFlowNet(nn.Module):
                 # row-wise; the features keep the offsets of the unturned cloud (a few degrees apart)
                 rigid = RigidVoteConfig(vote=vote, range_weighted=cfg.rigid_vote_far,
                                          yaw_search_deg=cfg.rigid_vote_yaw_deg, choose_gap_m=cfg.rigid_vote_gap_m,
-                                         forward_starts=cfg.rigid_vote_forward)
+                                         forward_starts=cfg.rigid_vote_forward,
+                                         density_rounds_m=cfg.rigid_vote_density_m)
                 turn, shift = vote_rigid(p1.xyz[0], p2.xyz[0], rigid, x2 if cfg.rigid_vote_dense else None,
                                          -centre[:, 0])
                 p2.xyz = [(x - shift[:, None]) @ turn for x in p2.xyz]

@@ -84,6 +84,12 @@ class HALFlowConfig:
         the histogram's maxima can all lie to the side of the camera's translation, and the rounds from there
         settle in a turn paired with a sideways shift (docs/learned-flow.md, thirty-seventh round). Inference
         only in the demo preset; needs ``rigid_vote`` or ``eval_anchor``; false = the vote's hypotheses alone.
+    rigid_vote_density_m: the rigid vote also refines each of its starts by rounds in which every frame-1 point
+        weighs one over the number of frame-1 points within this radius (metres) of it, beside the rounds that
+        weigh each alike, and its choice picks among both (:class:`~training.model.rigid_vote.RigidVoteConfig`
+        ``density_rounds_m``). Where cars ahead are sampled more densely than the street they drive along, the
+        uniform rounds drift towards their motion (docs/learned-flow.md, thirty-eighth round). Inference only in
+        the demo preset (0.62 m); needs ``rigid_vote`` or ``eval_anchor``; 0 = the uniform rounds alone.
     ego_head: after every level's flow, fit one rigid motion (the camera's) to it robustly and let points
         that agree with it take its flow, the others keep their own (:mod:`training.model.ego_motion`);
         false = the paper's per-point flow regressor. A departure from the paper (README).
@@ -185,6 +191,7 @@ class HALFlowConfig:
     rigid_vote_yaw_deg: float = 0.0
     rigid_vote_gap_m: float = 0.0
     rigid_vote_forward: bool = False
+    rigid_vote_density_m: float = 0.0
     ego_head: bool = False
     ego_sigma: float = 0.1
     ego_mad_factor: float = 3.0
@@ -240,11 +247,12 @@ class HALFlowConfig:
         if self.rigid_vote_yaw_deg and not (self.rigid_vote or self.eval_anchor):
             raise ConfigError("model.rigid_vote_yaw_deg changes the rigid vote: it needs model.rigid_vote or "
                               "model.eval_anchor")
-        if not self.rigid_vote_gap_m >= 0:
-            raise ConfigError(f"model.rigid_vote_gap_m must be >= 0, got {self.rigid_vote_gap_m}")
-        if self.rigid_vote_gap_m and not (self.rigid_vote or self.eval_anchor):
-            raise ConfigError("model.rigid_vote_gap_m changes the rigid vote: it needs model.rigid_vote or "
-                              "model.eval_anchor")
+        for name in ("rigid_vote_gap_m", "rigid_vote_density_m"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"model.{name} must be >= 0 m, got {getattr(self, name)}")
+            if getattr(self, name) and not (self.rigid_vote or self.eval_anchor):
+                raise ConfigError(f"model.{name} changes the rigid vote: it needs model.rigid_vote or "
+                                  "model.eval_anchor")
         if self.eval_gate_k < 0:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
@@ -296,7 +304,8 @@ class HALFlowConfig:
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
         ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
-        ``rigid_vote_forward`` where no rigid vote is left and ``eval_evidence_dense`` where no evidence test is."""
+        ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and ``eval_evidence_dense``
+        where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
@@ -304,7 +313,8 @@ class HALFlowConfig:
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
                        rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0,
                        rigid_vote_gap_m=self.rigid_vote_gap_m if keep_vote else 0.0,
-                       rigid_vote_forward=self.rigid_vote_forward and keep_vote)
+                       rigid_vote_forward=self.rigid_vote_forward and keep_vote,
+                       rigid_vote_density_m=self.rigid_vote_density_m if keep_vote else 0.0)
 
     @property
     def output_points(self) -> tuple[int, ...]:
