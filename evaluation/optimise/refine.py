@@ -2,13 +2,14 @@
 
 Starting from ``f₀`` (N, 3), minimise (see :class:`~evaluation.optimise.config.RefineConfig`)
 
-    L(f) = L_Cha,trunc(pc1 + f, pc2) + λ_LR · L_LR(pc1 + f) + λ_R · mean ρ_GM(‖f − f_R‖)
+    L(f) = L_Cha,trunc(pc1 + f, pc2) + λ_LR · L_LR(pc1 + f) + λ_R · mean ρ_GM(‖f − f_R‖) + λ_S · mean_S ‖f − f₀‖²
 
 with the paper's Chamfer (eq. 13, truncated as in NSFP) and Laplacian (eq. 16) terms from
 :mod:`training.losses`, and a rigid prior: ``f_R = (R p + t) − p`` is the rigid motion fitted robustly to
 ``f₀`` (:func:`~evaluation.optimise.rigid.robust_rigid_fit`); for a static point the true flow *is* the
 ego-motion's rigid flow, so pulling towards it averages the net's per-point noise over the whole static
-scene, while the bounded Geman–McClure penalty lets moving objects go. ``f`` is either free per point
+scene, while the bounded Geman–McClure penalty lets moving objects go; and, over the points ``S`` that the start
+method marks static (the rigid polish's step 4), a quadratic pull back to their start. ``f`` is either free per point
 (``"free"``) or ``f₀ + MLP_θ(p)`` with the MLP's output layer starting at zero (``"mlp"``). Both start
 exactly at ``f₀``, so a good initial flow needs few steps — this is what makes refinement cheaper than
 fitting NSFP from scratch. Frames: pc1 and flow in camera 1, pc1 + flow and pc2 in camera 2, metres.
@@ -33,13 +34,22 @@ from training.pointops import surface_normals
 
 
 def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.ndarray | Tensor,
-                cfg: RefineConfig | None = None) -> FitResult:
-    """Refine ``init`` (N, 3) for the scene pc1 (N, 3) → pc2 (M, 3), metres; returns a :class:`FitResult`."""
+                cfg: RefineConfig | None = None, static: np.ndarray | Tensor | None = None) -> FitResult:
+    """Refine ``init`` (N, 3) for the scene pc1 (N, 3) → pc2 (M, 3), metres; returns a :class:`FitResult`.
+    ``static`` (N,) bool, optional: the points the start method marks static, held at ``init`` with
+    ``cfg.static_weight`` (none marked: no such term)."""
     cfg = (cfg or RefineConfig()).validate()
     dev = resolve(cfg.device)
     p1, p2, f0 = as_tensor(pc1, dev), as_tensor(pc2, dev), as_tensor(init, dev)
     if f0.shape != p1.shape:
         raise ValueError(f"init flow has shape {tuple(f0.shape[1:])}, expected {tuple(p1.shape[1:])}")
+    held = None
+    if static is not None and cfg.static_weight > 0:
+        held = torch.as_tensor(np.asarray(static, dtype=bool) if not isinstance(static, Tensor) else static,
+                               device=dev).reshape(-1)
+        if held.shape[0] != p1.shape[1]:
+            raise ValueError(f"static mask has {held.shape[0]} entries, expected {p1.shape[1]}")
+        held = held if bool(held.any()) else None
     pts = p1[0]
     rot0, t0, rigid0 = robust_rigid_fit(pts, f0[0], scale=cfg.rigid_scale)
     params: list[Any]
@@ -78,6 +88,8 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
             loss = loss + cfg.laplacian_weight * laplacian_term(warped, p1, p2, cfg.laplacian_k)
         if cfg.rigid_weight > 0:
             loss = loss + cfg.rigid_weight * geman_mcclure(flow - rigid, cfg.rigid_scale)
+        if held is not None:
+            loss = loss + cfg.static_weight * ((flow[0, held] - f0[0, held]) ** 2).sum(-1).mean()
         return loss, flow[0]
 
     return minimise(params, step, cfg)
@@ -87,7 +99,8 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
 class RefinedMethod:
     """``base`` (any :class:`~evaluation.methods.FlowMethod`, e.g. a ``NetMethod``) followed by
     :func:`refine_flow`; named ``"<base name> + refinement"`` and reported as its own row. Its time per
-    scene includes the base method's call.
+    scene includes the base method's call. A base that marks static points (``static_points(pc1, pc2)``, the
+    rigid polish) hands them to the refinement (``RefineConfig.static_weight``).
     """
 
     base: Any
@@ -100,6 +113,8 @@ class RefinedMethod:
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
         init = np.asarray(ask(self.base, pc1, pc2, color1, color2), dtype=np.float32)
+        marks = getattr(type(self.base), "static_points", None)  # the base's own, not one it wraps
+        static = marks(self.base, pc1, pc2) if callable(marks) else None
         with torch.enable_grad():
-            self.last = refine_flow(pc1, pc2, init, self.config)
+            self.last = refine_flow(pc1, pc2, init, self.config, static)
         return self.last.flow.cpu().numpy().astype(np.float32)
