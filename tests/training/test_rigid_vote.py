@@ -254,28 +254,22 @@ def test_bad_settings_are_refused():
         HALFlowConfig(translation_vote=True, rigid_vote_yaw_deg=6.0)
     with pytest.raises(ConfigError, match="rigid_vote_yaw_deg"):
         HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_yaw_deg=-1.0)
-    with pytest.raises(ValueError):
-        RigidVoteConfig(choose_gap_m=-0.1)
-    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
-        HALFlowConfig(translation_vote=True, rigid_vote_gap_m=0.3)
-    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
-        HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_gap_m=-0.3)
-    anchored = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True, rigid_vote_gap_m=0.3)
-    assert anchored.without_anchor().rigid_vote_gap_m == 0  # no vote left to choose
+    # the vote's options in metres: refused below zero, and without a rigid vote to change; dropped with the anchor
+    for vote_field, model_field in (("choose_gap_m", "rigid_vote_gap_m"), ("density_rounds_m", "rigid_vote_density_m")):
+        with pytest.raises(ValueError):
+            RigidVoteConfig(**{vote_field: -0.1})
+        with pytest.raises(ConfigError, match=model_field):
+            HALFlowConfig(translation_vote=True, **{model_field: 0.3})
+        with pytest.raises(ConfigError, match=model_field):
+            HALFlowConfig(translation_vote=True, rigid_vote=True, **{model_field: -0.3})
+        anchored = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
+                                 **{model_field: 0.3})
+        assert getattr(anchored.without_anchor(), model_field) == 0  # no vote left to change
     with pytest.raises(ConfigError, match="rigid_vote_forward"):
         HALFlowConfig(translation_vote=True, rigid_vote_forward=True)
     forward = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
                             rigid_vote_forward=True)
     assert not forward.without_anchor().rigid_vote_forward  # no vote left to start
-    with pytest.raises(ValueError):
-        RigidVoteConfig(density_rounds_m=-0.1)
-    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
-        HALFlowConfig(translation_vote=True, rigid_vote_density_m=0.62)
-    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
-        HALFlowConfig(translation_vote=True, rigid_vote=True, rigid_vote_density_m=-0.62)
-    dense = HALFlowConfig(translation_vote=True, ego_head=True, l0_cost_volume=True, eval_anchor=True,
-                          rigid_vote_density_m=0.62)
-    assert dense.without_anchor().rigid_vote_density_m == 0  # no vote left to refine
 
 
 ORIGIN = torch.zeros(1, 3, dtype=torch.float64)
