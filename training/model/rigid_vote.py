@@ -29,7 +29,7 @@ too, by trimmed nearest-neighbour registration (point-to-point ICP with shrinkin
    within that radius of it (:func:`density_weights`), beside the rounds in which each weighs one: the
    sampling is densest near the camera, so in a street walled by façades that run along the camera's path,
    cars driving ahead hold most of the pairs that fix the motion along it, and the rounds drift towards
-   their motion (0.27 m of static error on one test world's crossing sequence, from the true motion as
+   their motion (0.27 m of static error on a development world's crossing sequence, from the true motion as
    well); weighed by density, a part of the scene counts by the space it fills, not by how densely it was
    sampled (docs/learned-flow.md, thirty-eighth round). Both results go to the choice (step 4);
 3. a hypothesis whose last round keeps fewer than ``min_inliers`` pairs keeps its translation alone;
