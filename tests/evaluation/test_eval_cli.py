@@ -382,72 +382,36 @@ def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, 
     assert [r["method"] for r in rows] == ["ours (run, step 3, turn scan ±6°)"]
 
 
-def test_the_votes_choice_by_gap_can_be_set_for_a_trained_net_and_names_the_row(world: Path, tmp_path: Path) -> None:
-    """``--vote-gap`` / ``NetMethod(vote_gap=…)``: an anchored net trained before the switch existed scored with the
-    rigid vote choosing by its gap (named, for inference only); a net without a rigid vote: one error line."""
+@pytest.mark.parametrize("kwarg, field, on, off, suffix, flag, negative", [
+    ("vote_gap", "rigid_vote_gap_m", 0.3, 0.0, "vote by gap 0.3 m", ("--vote-gap", "0.3"), None),
+    ("vote_forward", "rigid_vote_forward", True, False, "forward starts", ("--vote-forward", "on"), None),
+    ("vote_density", "rigid_vote_density_m", 0.62, 0.0, "density rounds 0.62 m", ("--vote-density", "0.62"), -1.0)])
+def test_an_inference_option_of_the_rigid_vote_can_be_set_for_a_trained_net_and_names_the_row(
+        world: Path, tmp_path: Path, kwarg, field, on, off, suffix, flag, negative) -> None:
+    """``--vote-gap`` / ``--vote-forward`` / ``--vote-density`` and ``NetMethod(vote_gap | vote_forward | vote_density=…)``:
+    an anchored net trained before the option existed scored with the rigid vote choosing by its gap, starting along
+    the optical axis or weighing its rounds by density (named, for inference only); the option's off value leaves it as
+    trained; a net without a rigid vote, or a radius below zero: one error naming the option."""
     from core.errors import ConfigError
 
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
-    plain, gap = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_gap=0.3)
-    assert plain.net.config.rigid_vote_gap_m == 0.0 and gap.net.config.rigid_vote_gap_m == 0.3
-    assert gap.name == "ours (run, step 3, vote by gap 0.3 m)" and NetMethod(path, device="cpu", vote_gap=0.0).name == plain.name
+    plain, changed = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", **{kwarg: on})
+    assert getattr(plain.net.config, field) == off and getattr(changed.net.config, field) == on
+    assert changed.name == f"ours (run, step 3, {suffix})"
+    assert NetMethod(path, device="cpu", **{kwarg: off}).name == plain.name
     scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
-    assert np.isfinite(gap(scene.pc1, scene.pc2)).all()
+    assert np.isfinite(changed(scene.pc1, scene.pc2)).all()
     bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
-    with pytest.raises(ConfigError, match="rigid_vote_gap_m"):
-        NetMethod(bare, device="cpu", vote_gap=0.3)
+    with pytest.raises(ConfigError, match=field):
+        NetMethod(bare, device="cpu", **{kwarg: on})
+    if negative is not None:
+        with pytest.raises(ConfigError, match=field):
+            NetMethod(path, device="cpu", **{kwarg: negative})
     out = tmp_path / "eval"
     assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
-                 "--vote-gap", "0.3", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+                 *flag, "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
-    assert [r["method"] for r in rows] == ["ours (run, step 3, vote by gap 0.3 m)"]
-
-
-def test_the_votes_forward_starts_can_be_set_for_a_trained_net_and_name_the_row(world: Path, tmp_path: Path) -> None:
-    """``--vote-forward`` / ``NetMethod(vote_forward=…)``: an anchored net trained before the switch existed scored
-    with the rigid vote's forward starts (named, for inference only); a net without a rigid vote: one error line."""
-    from core.errors import ConfigError
-
-    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
-    plain, forward = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_forward=True)
-    assert not plain.net.config.rigid_vote_forward and forward.net.config.rigid_vote_forward
-    assert forward.name == "ours (run, step 3, forward starts)"
-    assert NetMethod(path, device="cpu", vote_forward=False).name == plain.name
-    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
-    assert np.isfinite(forward(scene.pc1, scene.pc2)).all()
-    bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
-    with pytest.raises(ConfigError, match="rigid_vote_forward"):
-        NetMethod(bare, device="cpu", vote_forward=True)
-    out = tmp_path / "eval"
-    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
-                 "--vote-forward", "on", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
-    rows = json.loads((out / "results.json").read_text())["rows"]
-    assert [r["method"] for r in rows] == ["ours (run, step 3, forward starts)"]
-
-
-def test_the_votes_density_rounds_can_be_set_for_a_trained_net_and_name_the_row(world: Path, tmp_path: Path) -> None:
-    """``--vote-density`` / ``NetMethod(vote_density=…)``: an anchored net trained before the option existed scored
-    with the rigid vote's rounds also weighed by density (named, for inference only); 0 leaves it as trained; a net
-    without a rigid vote, or a radius below zero: one error naming the option."""
-    from core.errors import ConfigError
-
-    path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)
-    plain, dense = NetMethod(path, device="cpu"), NetMethod(path, device="cpu", vote_density=0.62)
-    assert plain.net.config.rigid_vote_density_m == 0 and dense.net.config.rigid_vote_density_m == 0.62
-    assert dense.name == "ours (run, step 3, density rounds 0.62 m)"
-    assert NetMethod(path, device="cpu", vote_density=0).name == plain.name
-    scene = prepare_scene(load_split(world / "sceneflow" / "flownet3d")[0], ProtocolConfig(n_points=256, n_score=64), 0)
-    assert np.isfinite(dense(scene.pc1, scene.pc2)).all()
-    bare = save_tiny_checkpoint(tmp_path / "bare" / "latest.pt")
-    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
-        NetMethod(bare, device="cpu", vote_density=0.62)
-    with pytest.raises(ConfigError, match="rigid_vote_density_m"):
-        NetMethod(path, device="cpu", vote_density=-1.0)
-    out = tmp_path / "eval"
-    assert main(["run", "--split", str(world / "sceneflow" / "flownet3d"), "--checkpoint", str(path), "--baselines", "",
-                 "--vote-density", "0.62", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
-    rows = json.loads((out / "results.json").read_text())["rows"]
-    assert [r["method"] for r in rows] == ["ours (run, step 3, density rounds 0.62 m)"]
+    assert [r["method"] for r in rows] == [f"ours (run, step 3, {suffix})"]
 
 
 def test_the_anchors_dense_evidence_can_be_forced_either_way_and_names_the_row(world: Path, tmp_path: Path) -> None:
