@@ -119,21 +119,21 @@ class NetMethod:
         if override("eval_anchor", eval_anchor, "inference anchor (eval_anchor)",
                     lambda c: replace(c, eval_anchor=True) if eval_anchor else c.without_anchor()):
             suffix = ", anchored" if eval_anchor else ", not anchored"
-        if override("rigid_vote_yaw_deg", turn_scan, "rigid vote to scan turns for",
-                    lambda c: replace(c, rigid_vote_yaw_deg=float(turn_scan))):
-            suffix += f", turn scan ±{turn_scan:g}°"
-        if override("eval_evidence_dense", evidence_dense, "inference anchor's evidence test (eval_evidence_dense)",
-                    lambda c: replace(c, eval_evidence_dense=bool(evidence_dense))):
-            suffix += ", dense evidence" if evidence_dense else ", L0 evidence"
-        if override("rigid_vote_gap_m", vote_gap, "rigid vote to choose by its gap",
-                    lambda c: replace(c, rigid_vote_gap_m=float(vote_gap))):
-            suffix += f", vote by gap {vote_gap:g} m" if vote_gap else ", vote by count"
-        if override("rigid_vote_forward", vote_forward, "rigid vote to start along the optical axis",
-                    lambda c: replace(c, rigid_vote_forward=bool(vote_forward))):
-            suffix += ", forward starts" if vote_forward else ", no forward starts"
-        if override("rigid_vote_density_m", vote_density, "rigid vote to weigh its rounds by density",
-                    lambda c: replace(c, rigid_vote_density_m=float(vote_density))):
-            suffix += f", density rounds {vote_density:g} m" if vote_density else ", uniform rounds"
+        # the inference-only fields set as given: (field, value, its type, what a net without it lacks, the row's
+        # note for the value when it changes the config)
+        for field, value, kind, lacks, note in (
+                ("rigid_vote_yaw_deg", turn_scan, float, "rigid vote to scan turns for",
+                 lambda v: f", turn scan ±{v:g}°"),
+                ("eval_evidence_dense", evidence_dense, bool, "inference anchor's evidence test (eval_evidence_dense)",
+                 lambda v: ", dense evidence" if v else ", L0 evidence"),
+                ("rigid_vote_gap_m", vote_gap, float, "rigid vote to choose by its gap",
+                 lambda v: f", vote by gap {v:g} m" if v else ", vote by count"),
+                ("rigid_vote_forward", vote_forward, bool, "rigid vote to start along the optical axis",
+                 lambda v: ", forward starts" if v else ", no forward starts"),
+                ("rigid_vote_density_m", vote_density, float, "rigid vote to weigh its rounds by density",
+                 lambda v: f", density rounds {v:g} m" if v else ", uniform rounds")):
+            if override(field, value, lacks, lambda c, f=field, v=value, k=kind: replace(c, **{f: k(v)})):
+                suffix += note(value)
         cfg = ckpt["config"]
         self.uses_colour = bool((cfg.get("data") or {}).get("colour_features", True)) and self.config.feature_dim == 3
         self.device = resolve_device(device)
