@@ -85,6 +85,9 @@ def _main(argv: list[str] | None) -> int:
     if trainer.dist.is_main:
         shown = {k: round(float(last[k]), 5) for k in ("loss", "val_epe3d", "val_loss") if k in last}
         print(f"done: {trainer.step} steps in {trainer.run_dir} — {shown}")
+        summary = trainer.selection_summary()
+        if summary:
+            print(summary)
     return 0
 
 

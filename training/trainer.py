@@ -185,6 +185,8 @@ class Trainer:
                                                            lambda s: lr_factor(s, cfg, self.steps, pairs))
         self.step = 0
         self.best_val: float | None = None
+        self.best_step: int | None = None  # the step best.pt holds (None: no validation yet, or an older run)
+        self.last_val: tuple[int, float] | None = None  # (step, select_by score) of the latest validation
         resumed = resume and (self.run_dir / "latest.pt").exists()
         if resumed:
             self._load(self.run_dir / "latest.pt")
@@ -229,6 +231,7 @@ class Trainer:
         average's update count under ``average_updates``."""
         out = {"kind": "flow", "model": self.inference_model.state_dict(), "optimizer": self.optimizer.state_dict(),
                "scheduler": self.scheduler.state_dict(), "step": self.step, "best_val": self.best_val,
+               "best_step": self.best_step,
                "rng": checkpoints.rng_state(), "config": asdict(self.cfg)}
         if self.average is not None:
             out["trained_model"] = self.model.state_dict()
@@ -256,6 +259,7 @@ class Trainer:
             self.scheduler.load_state_dict(ckpt["scheduler"])
             self.step = int(ckpt["step"])
             self.best_val = ckpt.get("best_val")
+            self.best_step = ckpt.get("best_step")
             checkpoints.set_rng_state(ckpt["rng"])
         except KeyError as exc:
             raise InputError(path, f"checkpoint lacks {exc}") from None
@@ -350,9 +354,27 @@ class Trainer:
         key = self.cfg.select_by
         if key not in val:
             return
+        if self.step > 0:
+            self.last_val = (self.step, float(val[key]))
         if self.step > 0 and (self.best_val is None or val[key] < self.best_val):
             self.best_val = val[key]
+            self.best_step = self.step
             self._save("best.pt")
+
+    def selection_summary(self) -> str | None:
+        """One line on what the label-free checkpoint choice kept: best.pt's step and ``select_by`` score, and
+        how the run's latest validation compares with it (docs/learned-flow.md, thirty-ninth round: a run whose
+        finest-level validation loss rose from its best while its training loss fell had got worse on every test
+        split). None before the first validation after step 0."""
+        if self.best_val is None or self.last_val is None:
+            return None
+        key, (step, score) = self.cfg.select_by, self.last_val
+        at = f"step {self.best_step}" if self.best_step is not None else "an earlier step"
+        line = f"best.pt: {at} ({key} {self.best_val:.5f})"
+        if step == self.best_step:
+            return line + "; it is the latest validation"
+        rise = (score - self.best_val) / abs(self.best_val) * 100 if self.best_val else float("inf")
+        return line + f"; the latest validation (step {step}) {score:.5f}, {rise:+.1f} % from it"
 
     def fit(self) -> dict[str, float]:
         """Train to ``self.steps``; returns the last logged row (with validation when available)."""
