@@ -150,6 +150,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "weighed by one over the number of frame-1 points within this radius of it "
                         "(model.rigid_vote_density_m, inference only; needs the anchor or the rigid vote): as "
                         "trained, or a number (0 = off, 0.62 = the demo preset's); a change is named in the row")
+    r.add_argument("--own-departure", default="as-trained", choices=tuple(AS_TRAINED),
+                   help="each checkpoint's anchor measures a point's departure from the net's own camera motion (its "
+                        "rigid fit of the finest level's flow) and adds it to the vote's motion "
+                        "(model.eval_own_departure, inference only; needs the anchor): on, off (departures from the "
+                        "vote's motion), or as trained; a change is named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -283,7 +288,8 @@ def _run(args) -> int:
     density = None if args.vote_density == "as-trained" else _number("--vote-density", args.vote_density, "metres")
     dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
-                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density)
+                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density,
+                      own_departure=AS_TRAINED[args.own_departure])
             for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)

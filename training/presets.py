@@ -31,7 +31,9 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     whole input (``model.eval_evidence_dense``, thirty-fourth round) and the vote's choice among its hypotheses
     made by the mean gap from frame 1 to frame 2 (``model.rigid_vote_gap_m``, thirty-fifth round), each hypothesis also
     started along the camera's optical axis (``model.rigid_vote_forward``, thirty-seventh round) and also refined with
-    each point weighed by its neighbourhood's density (``model.rigid_vote_density_m``, thirty-eighth round);
+    each point weighed by its neighbourhood's density (``model.rigid_vote_density_m``, thirty-eighth round), and the
+    finest level's departures measured from the net's own camera motion (``model.eval_own_departure``, thirty-ninth
+    round);
     ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
@@ -50,6 +52,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
                   "translation_vote": True, "ego_open_gradient": True, "zero_flow_heads": True,
                   "eval_anchor": True, "rigid_vote_dense": True, "rigid_vote_far": True,
                   "eval_gate_k": 16, "rigid_vote_yaw_deg": 6.0, "eval_evidence_dense": True,
-                  "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True, "rigid_vote_density_m": 0.62},
+                  "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True, "rigid_vote_density_m": 0.62,
+                  "eval_own_departure": True},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")

@@ -189,3 +189,38 @@ def test_eval_evidence_dense_needs_an_evidence_test_and_goes_with_the_anchor():
     assert _cfg(eval_anchor=True, eval_evidence_dense=True).without_anchor().eval_evidence_dense is False
     kept = _cfg(eval_anchor=True, eval_evidence_dense=True, ego_gate_evidence=True).without_anchor()
     assert kept.eval_evidence_dense is True  # an evidence test left: the option stays
+
+
+def test_eval_own_departure_needs_the_hold_at_the_vote_and_goes_with_the_anchor():
+    with pytest.raises(ConfigError, match="eval_own_departure"):
+        _cfg(eval_own_departure=True)
+    assert _cfg(eval_anchor=True, eval_own_departure=True).without_anchor().eval_own_departure is False
+    kept = _cfg(eval_anchor=True, eval_own_departure=True, **ANCHORED).without_anchor()
+    assert kept.eval_own_departure is True  # the hold at the vote's motion left: the option stays
+
+
+def test_eval_own_departure_changes_inference_passes_only(monkeypatch):
+    """The switch's wiring: at inference the finest level's hold reads the flow's departure from its own robust
+    fit (an :func:`~training.model.ego_motion.own_departure` call, and a different output); training steps, and
+    the net without it, never call it."""
+    import training.model.halflownet as halflownet
+
+    calls: list[int] = []
+    real = halflownet.own_departure
+
+    def spy(*args, **kwargs):
+        calls.append(args[0].shape[1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(halflownet, "own_departure", spy)
+    pc1, pc2 = _pair()
+    torch.manual_seed(0)
+    own = HALFlowNet(_cfg(eval_anchor=True, eval_own_departure=True))
+    plain = HALFlowNet(_cfg(eval_anchor=True))
+    plain.load_state_dict(own.state_dict())
+    a = _flows(own.eval(), pc1, pc2)[0]
+    assert calls == [own.config.level_points[0]]
+    b = _flows(plain.eval(), pc1, pc2)[0]
+    _flows(own.train(), pc1, pc2)
+    assert calls == [own.config.level_points[0]]
+    assert a.shape == b.shape and torch.isfinite(a).all() and not torch.equal(a, b)

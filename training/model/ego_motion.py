@@ -170,3 +170,15 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             through = group(flow, near).mean(dim=2)
         out = out + (1 - gate) * (through - through.detach())
     return EgoSplit(out, R, t, weights, gate[..., 0])
+
+
+def own_departure(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4, mad_factor: float = 0.0,
+                  planar: bool = False) -> Tensor:
+    """``flow − (T̂ p − p)``: each point's departure (B, N, 3, metres) from ``T̂``, the robust rigid fit of ``flow``
+    (B, N, 3) at ``points`` (B, N, 3) that :func:`rigid_plus_residual` makes with these settings (Cauchy
+    re-weighting, so the points that move on their own lose their say). Zero on points that move with the fitted
+    camera motion, a mover's own motion on its points, whatever error the fitted motion itself has: the anchor
+    adds these departures to the rigid vote's motion (``HALFlowConfig.eval_own_departure``). No gradient
+    through the fit's weights; differentiable in ``flow`` like the fit."""
+    split = rigid_plus_residual(points, flow, sigma, iterations, mad_factor, planar)
+    return flow - (points @ split.R.transpose(1, 2) + split.t[:, None] - points)

@@ -31,7 +31,7 @@ from core.errors import InputError
 from training.model.coarse_match import SoftTranslation
 from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
-from training.model.ego_motion import rigid_plus_residual
+from training.model.ego_motion import own_departure, rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
 from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stats
 from training.model.layers import SharedMLP, scaled
@@ -361,6 +361,11 @@ class HALFlowNet(nn.Module):
             evidence2 = x2 if shift is None else x2 - shift[:, None]
             if turn is not None:
                 evidence2 = evidence2 @ turn
+        if cfg.eval_own_departure and cfg.ego_l0_hold and cfg.ego_l0_hold_from == "vote" and not self.training:
+            # the vote-aligned frame: the vote's motion is the identity, so the departure from the net's own motion
+            # is the flow the hold reads (HALFlowConfig.eval_own_departure)
+            flow = own_departure(p1.xyz[0].float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations,
+                                 cfg.ego_mad_factor, cfg.ego_planar).to(flow.dtype)
         flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, evidence2, hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)

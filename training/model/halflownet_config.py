@@ -164,6 +164,13 @@ class HALFlowConfig:
         half the sample's spacing from its nearest point, so a static point's stray flow that lands nearer one
         passes; against the whole cloud the right rigid target lies on frame 2's surface. Inference only, no
         gradient; false = the L0 sample (thirty-fourth round).
+    eval_own_departure: with ``eval_anchor`` (or ``ego_l0_hold`` from ``"vote"``): at inference a finest-level point's departure is measured from the
+        net's own camera motion — the robust rigid fit of its finest-level flow (the ego head's fit, ``ego_sigma``,
+        ``ego_mad_factor``, ``ego_iterations``, ``ego_planar``) — instead of from the rigid vote's, and then added
+        to the vote's motion; the gate and the evidence test read that departure. Where the net's camera motion
+        is off the vote's by δ, every static point otherwise departs by about δ: the gate's scale (three robust
+        standard deviations of the residuals) grows with δ and shuts on movers, and the movers that pass carry δ.
+        Inference only, no gradient; a departure; false = departures from the vote's motion (thirty-ninth round).
     """
 
     n_points: int = 8192
@@ -209,6 +216,7 @@ class HALFlowConfig:
     eval_anchor: bool = False
     eval_gate_k: int = 0
     eval_evidence_dense: bool = False
+    eval_own_departure: bool = False
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -257,6 +265,9 @@ class HALFlowConfig:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
             raise ConfigError("model.eval_gate_k sets the anchor's gate at inference: it needs model.eval_anchor")
+        if self.eval_own_departure and not (self.eval_anchor or (self.ego_l0_hold and self.ego_l0_hold_from == "vote")):
+            raise ConfigError("model.eval_own_departure measures the anchor's departures: it needs model.eval_anchor "
+                              "(or the finest level held at the vote's motion)")
         if self.eval_evidence_dense and not (self.eval_anchor or self.ego_gate_evidence):
             raise ConfigError("model.eval_evidence_dense changes the evidence test: it needs model.eval_anchor or "
                               "model.ego_gate_evidence")
@@ -303,11 +314,12 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
+        ``eval_gate_k``, ``eval_own_departure``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
         ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and ``eval_evidence_dense``
         where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
+                       eval_own_departure=self.eval_own_departure and self.ego_l0_hold and self.ego_l0_hold_from == "vote",
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
