@@ -33,6 +33,15 @@ def _pair() -> tuple[torch.Tensor, torch.Tensor]:
     return pc1, pc2
 
 
+def _anchored_twins(**switch) -> tuple[HALFlowNet, HALFlowNet]:
+    """Two anchored nets with the same (seed-0) weights: one with the inference ``switch`` on, one without."""
+    torch.manual_seed(0)
+    on = HALFlowNet(_cfg(eval_anchor=True, **switch))
+    off = HALFlowNet(_cfg(eval_anchor=True))
+    off.load_state_dict(on.state_dict())
+    return on, off
+
+
 def _flows(net: HALFlowNet, pc1: torch.Tensor, pc2: torch.Tensor) -> list[torch.Tensor]:
     with torch.no_grad():
         return net(pc1, pc2).flows
@@ -167,10 +176,7 @@ def test_eval_evidence_dense_gives_the_finest_levels_evidence_test_the_whole_fra
 
     monkeypatch.setattr(halflownet, "rigid_plus_residual", spy)
     pc1, pc2 = _pair()
-    torch.manual_seed(0)
-    dense = HALFlowNet(_cfg(eval_anchor=True, eval_evidence_dense=True))
-    sample = HALFlowNet(_cfg(eval_anchor=True))
-    sample.load_state_dict(dense.state_dict())
+    dense, sample = _anchored_twins(eval_evidence_dense=True)
     level0 = dense.config.level_points[0]
     _flows(dense.eval(), pc1, pc2)
     assert seen[-1] == pc2.shape[1] and set(seen[:-1]) <= set(dense.config.level_points)
@@ -214,10 +220,7 @@ def test_eval_own_departure_changes_inference_passes_only(monkeypatch):
 
     monkeypatch.setattr(halflownet, "own_departure", spy)
     pc1, pc2 = _pair()
-    torch.manual_seed(0)
-    own = HALFlowNet(_cfg(eval_anchor=True, eval_own_departure=True))
-    plain = HALFlowNet(_cfg(eval_anchor=True))
-    plain.load_state_dict(own.state_dict())
+    own, plain = _anchored_twins(eval_own_departure=True)
     a = _flows(own.eval(), pc1, pc2)[0]
     assert calls == [own.config.level_points[0]]
     b = _flows(plain.eval(), pc1, pc2)[0]
