@@ -202,3 +202,17 @@ def test_a_registered_method_is_a_baseline(world: Path, tmp_path: Path, monkeypa
         capsys.readouterr().err
     with pytest.raises(ConfigError, match="unknown wrapper 'zero'"):
         methods.make_method("zero", _Constant())
+
+
+def test_a_model_config_field_this_code_does_not_know_is_named(tmp_path: Path) -> None:
+    """A checkpoint whose ``config.model`` holds a field this version does not have (written by a newer version,
+    or a scratch edit): one InputError naming the file and the field, not "lacks the layout"."""
+    from testkit.flow_checkpoint import tiny_flow_checkpoint
+    from training.model.registry import restore_flow_net
+    from training.runtime.checkpoints import load_checkpoint
+
+    ckpt = load_checkpoint(tiny_flow_checkpoint(tmp_path / "new.pt"), kind="flow")
+    ckpt["config"]["model"]["eval_departure_from"] = "vote"
+    with pytest.raises(InputError, match=r"future.pt: checkpoint's model config has a field this version of the "
+                                         r"halflownet net does not know: 'eval_departure_from'"):
+        restore_flow_net(ckpt, tmp_path / "future.pt")

@@ -14,6 +14,7 @@ with it the configs and ``--help``, loads without torch; it is imported when a n
 from __future__ import annotations
 
 import importlib
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -98,7 +99,13 @@ def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowN
         saved = getattr(cls, "from_saved", None)  # a config may read fields of older runs (HALFlowConfig)
         config = saved(run["model"]) if saved is not None else cls(**run["model"])
         state = ckpt["model"]
-    except (KeyError, TypeError, AttributeError) as exc:
+    except TypeError as exc:
+        unknown = re.search(r"unexpected keyword argument '(\w+)'", str(exc))
+        if unknown:  # a field a newer (or a scratch) version of the code wrote
+            raise InputError(path, f"checkpoint's model config has a field this version of the {name} net does not "
+                                   f"know: {unknown.group(1)!r}") from None
+        raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
+    except (KeyError, AttributeError) as exc:
         raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
     except ConfigError as exc:
         raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
