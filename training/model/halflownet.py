@@ -351,7 +351,7 @@ class HALFlowNet(nn.Module):
             cost = self.cost0(p1.xyz[0] + flow, p1.feat[0], p2.xyz[0], p2.feat[0])
             flow = flow + self.head0_refine(self.refine0(flow, p1.feat[0], cost, hidden))
         hold = None
-        if cfg.ego_l0_hold and cfg.ego_l0_hold_from == "vote":  # frame 2 is pre-aligned by the vote: its motion
+        if cfg.held_at_vote:  # frame 2 is pre-aligned by the vote: its motion
             B = flow.shape[0]  # is the identity here
             hold = (torch.eye(3, device=flow.device, dtype=flow.dtype).expand(B, 3, 3), flow.new_zeros(B, 3))
         elif cfg.ego_l0_hold:
@@ -361,7 +361,7 @@ class HALFlowNet(nn.Module):
             evidence2 = x2 if shift is None else x2 - shift[:, None]
             if turn is not None:
                 evidence2 = evidence2 @ turn
-        if cfg.eval_own_departure and cfg.ego_l0_hold and cfg.ego_l0_hold_from == "vote" and not self.training:
+        if cfg.eval_own_departure and cfg.held_at_vote and not self.training:
             # the vote-aligned frame: the vote's motion is the identity, so the departure from the net's own motion
             # is the flow the hold reads (HALFlowConfig.eval_own_departure)
             flow = own_departure(p1.xyz[0].float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations,

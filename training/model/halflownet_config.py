@@ -265,7 +265,7 @@ class HALFlowConfig:
             raise ConfigError(f"model.eval_gate_k must be >= 0, got {self.eval_gate_k}")
         if self.eval_gate_k and not self.eval_anchor:
             raise ConfigError("model.eval_gate_k sets the anchor's gate at inference: it needs model.eval_anchor")
-        if self.eval_own_departure and not (self.eval_anchor or (self.ego_l0_hold and self.ego_l0_hold_from == "vote")):
+        if self.eval_own_departure and not (self.eval_anchor or self.held_at_vote):
             raise ConfigError("model.eval_own_departure measures the anchor's departures: it needs model.eval_anchor "
                               "(or the finest level held at the vote's motion)")
         if self.eval_evidence_dense and not (self.eval_anchor or self.ego_gate_evidence):
@@ -319,7 +319,7 @@ class HALFlowConfig:
         where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
-                       eval_own_departure=self.eval_own_departure and self.ego_l0_hold and self.ego_l0_hold_from == "vote",
+                       eval_own_departure=self.eval_own_departure and self.held_at_vote,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
@@ -327,6 +327,12 @@ class HALFlowConfig:
                        rigid_vote_gap_m=self.rigid_vote_gap_m if keep_vote else 0.0,
                        rigid_vote_forward=self.rigid_vote_forward and keep_vote,
                        rigid_vote_density_m=self.rigid_vote_density_m if keep_vote else 0.0)
+
+    @property
+    def held_at_vote(self) -> bool:
+        """Whether the finest level is held at the rigid vote's motion (``ego_l0_hold`` from ``"vote"``), as
+        ``eval_anchor``'s inference pass holds it."""
+        return self.ego_l0_hold and self.ego_l0_hold_from == "vote"
 
     @property
     def output_points(self) -> tuple[int, ...]:
