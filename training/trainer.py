@@ -354,9 +354,10 @@ class Trainer:
         key = self.cfg.select_by
         if key not in val:
             return
-        if self.step > 0:
-            self.last_val = (self.step, float(val[key]))
-        if self.step > 0 and (self.best_val is None or val[key] < self.best_val):
+        if self.step == 0:  # the untrained net is scored, never kept
+            return
+        self.last_val = (self.step, float(val[key]))
+        if self.best_val is None or val[key] < self.best_val:
             self.best_val = val[key]
             self.best_step = self.step
             self._save("best.pt")

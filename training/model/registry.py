@@ -99,13 +99,11 @@ def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowN
         saved = getattr(cls, "from_saved", None)  # a config may read fields of older runs (HALFlowConfig)
         config = saved(run["model"]) if saved is not None else cls(**run["model"])
         state = ckpt["model"]
-    except TypeError as exc:
-        unknown = re.search(r"unexpected keyword argument '(\w+)'", str(exc))
+    except (KeyError, TypeError, AttributeError) as exc:
+        unknown = re.search(r"unexpected keyword argument '(\w+)'", str(exc)) if isinstance(exc, TypeError) else None
         if unknown:  # a field a newer (or a scratch) version of the code wrote
             raise InputError(path, f"checkpoint's model config has a field this version of the {name} net does not "
                                    f"know: {unknown.group(1)!r}") from None
-        raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
-    except (KeyError, AttributeError) as exc:
         raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
     except ConfigError as exc:
         raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
