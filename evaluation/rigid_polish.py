@@ -532,23 +532,16 @@ class RigidPolished(MethodWrapper):
     config_type = RigidPolishConfig
     registered_ego = True  # a refinement after it holds this ego-motion (RefineConfig.after_registration)
 
-    _last: tuple | None = None  # (pc1, pc2, static) of the last call: the clouds themselves, by identity
-
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
+        return self.marked(pc1, pc2, color1, color2)[0]
+
+    def marked(self, pc1, pc2, color1=None, color2=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The polished flow and its marks: ``{"static": (N,) bool}``, the points step 4 gave the registered
+        camera motion. A refinement stacked after it (:class:`evaluation.optimise.RefinedMethod`,
+        ``RefineConfig.static_weight``) holds them; a stack's book keeps them with the flow (:mod:`evaluation.answers`)."""
         flow = ask(self.inner, pc1, pc2, color1, color2)
         out, _, static = polish_rigid(pc1, pc2, flow, self.config)
-        self._last = (pc1, pc2, static)
-        return out
-
-    def static_points(self, pc1, pc2) -> np.ndarray | None:
-        """(N,) bool: the points step 4 gave the registered camera motion in the last call, when that call was on
-        these very clouds (the same arrays: a stack's rows ask the polish of one scene in turn, answered from one
-        book, :mod:`evaluation.answers`); None otherwise. Read by a refinement stacked after it
-        (:class:`evaluation.optimise.RefinedMethod`, ``RefineConfig.static_weight``)."""
-        last = self._last
-        if last is None or last[0] is not pc1 or last[1] is not pc2:
-            return None
-        return last[2].copy()
+        return out, {"static": static}
 
 
 def rigid_polished(method, config: RigidPolishConfig | None = None) -> RigidPolished:

@@ -149,7 +149,7 @@ class RefineConfig(LoopConfig, ChamferConfig):
         point-to-point distance.
     static_weight: weight (dimensionless: m² of loss per m² of departure) of ``mean ‖f − f₀‖²`` over the points
         that the start method marks static (the rigid polish's step 4: its flow agrees with the registered camera
-        motion and lands on frame 2; :meth:`evaluation.rigid_polish.RigidPolished.static_points`), which holds them
+        motion and lands on frame 2; :meth:`evaluation.rigid_polish.RigidPolished.marked`), which holds them
         at their start where the data term is silent: along its own surface the plane form gives a point no pull
         either way, and the residual MLP, smooth in space, carries the movers' pull onto the static points around
         them (on the crossing-traffic development worlds the refinement slid far static points on a wall along the

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from evaluation.answers import ask
+from evaluation.answers import ask_marked
 from evaluation.optimise.common import FlowMLP, as_tensor, resolve
 from evaluation.optimise.config import RefineConfig
 from evaluation.optimise.loop import FitResult, minimise
@@ -99,8 +99,8 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
 class RefinedMethod:
     """``base`` (any :class:`~evaluation.methods.FlowMethod`, e.g. a ``NetMethod``) followed by
     :func:`refine_flow`; named ``"<base name> + refinement"`` and reported as its own row. Its time per
-    scene includes the base method's call. A base that marks static points (``static_points(pc1, pc2)``, the
-    rigid polish) hands them to the refinement (``RefineConfig.static_weight``).
+    scene includes the base method's call. A base that marks static points (its marks' ``"static"``, the rigid
+    polish's; :func:`evaluation.answers.ask_marked`) hands them to the refinement (``RefineConfig.static_weight``).
     """
 
     base: Any
@@ -112,9 +112,8 @@ class RefinedMethod:
         self.name = self.name or f"{self.base.name} + refinement"
 
     def __call__(self, pc1, pc2, color1=None, color2=None) -> np.ndarray:
-        init = np.asarray(ask(self.base, pc1, pc2, color1, color2), dtype=np.float32)
-        marks = getattr(type(self.base), "static_points", None)  # the base's own, not one it wraps
-        static = marks(self.base, pc1, pc2) if callable(marks) else None
+        init, marks = ask_marked(self.base, pc1, pc2, color1, color2)  # the base's own marks, not one it wraps
+        static = marks.get("static")
         with torch.enable_grad():
             self.last = refine_flow(pc1, pc2, init, self.config, static)
         return self.last.flow.cpu().numpy().astype(np.float32)

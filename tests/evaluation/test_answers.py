@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from evaluation.answers import AnswerBook, ask
+from evaluation.answers import AnswerBook, ask, ask_marked
 from evaluation.protocols import ProtocolConfig, run_protocol
 from evaluation.sample import SceneFlowSample
 from evaluation.wrapping import MethodWrapper
@@ -87,3 +87,30 @@ def test_an_answer_s_seconds_reach_every_enclosing_call():
         _, first = book.timed(ask, base, pc1, pc2)
         _, outer = book.timed(ask, Doubled(Doubled(base)), pc1, pc2)
     assert first >= 0.03 and outer >= first  # the outer call's wall time alone is near zero
+
+
+class Marking(Slow):
+    """``Slow`` that also marks the points with positive x (its class defines ``marked``)."""
+
+    def marked(self, pc1, pc2, color1=None, color2=None):
+        return self(pc1, pc2, color1, color2), {"right": np.asarray(pc1)[:, 0] > 0}
+
+
+def test_marks_are_kept_with_the_flow_and_only_a_class_s_own_count():
+    rng = np.random.default_rng(1)
+    pc1, pc2 = rng.normal(size=(6, 3)).astype(np.float32), rng.normal(size=(6, 3)).astype(np.float32)
+    base = Marking()
+    flow, marks = ask_marked(base, pc1, pc2)  # no book: computed
+    assert base.calls == 1 and np.array_equal(marks["right"], pc1[:, 0] > 0)
+    with AnswerBook(pc1, pc2):
+        first = ask(base, pc1, pc2)
+        again, kept = ask_marked(base, pc1, pc2)  # from the book, marks included
+        assert base.calls == 2 and np.array_equal(first, again) and np.array_equal(kept["right"], marks["right"])
+        kept["right"][:] = False  # a caller's change does not reach the kept marks
+        assert np.array_equal(ask_marked(base, pc1, pc2)[1]["right"], pc1[:, 0] > 0)
+        # a wrapper forwards attributes of the method it wraps, but its flow is its own, so are its (no) marks
+        wrapped = Doubled(base)
+        assert callable(wrapped.marked)
+        doubled, none = ask_marked(wrapped, pc1, pc2)
+        assert none == {} and np.allclose(doubled, 2 * first)
+    assert np.array_equal(flow, first)

@@ -292,9 +292,11 @@ def test_the_refinement_holds_the_starts_static_points_and_still_moves_the_rest(
 
 
 def test_a_refinement_after_the_polish_reads_the_polish_s_static_points(monkeypatch) -> None:
-    """The rigid polish keeps the step-4 mask of its last call and gives it only for those very clouds; the
-    refinement stacked after it hands it to ``refine_flow`` (a base without marks hands none)."""
+    """The rigid polish gives its step-4 mask with its flow; the refinement stacked after it hands the mask to
+    ``refine_flow``, whether the polish runs inside it or was answered from a scene's book filled by an earlier
+    pass over other scenes (a base without marks hands none)."""
     import evaluation.optimise.refine as refine_module
+    from evaluation.answers import AnswerBook, ask
     from evaluation.rigid_polish import RigidPolished, polish_rigid
 
     pc1, pc2, flow, _ = street(400, mover=True)
@@ -307,19 +309,27 @@ def test_a_refinement_after_the_polish_reads_the_polish_s_static_points(monkeypa
             return flow.astype(np.float32)
 
     polished = RigidPolished(Given())
-    assert polished.static_points(pc1, pc2) is None  # not called yet
-    out = polished(pc1, pc2)
-    np.testing.assert_array_equal(polished.static_points(pc1, pc2), polish_rigid(pc1, pc2, flow.astype(np.float32))[2])
-    np.testing.assert_array_equal(out, polish_rigid(pc1, pc2, flow.astype(np.float32))[0])
-    assert polished.static_points(pc1.copy(), pc2) is None  # other clouds: no answer
+    out, marks = polished.marked(pc1, pc2)
+    want_flow, _, want_static = polish_rigid(pc1, pc2, flow.astype(np.float32))
+    np.testing.assert_array_equal(marks["static"], want_static)
+    np.testing.assert_array_equal(out, want_flow)
+    np.testing.assert_array_equal(polished(pc1, pc2), want_flow)
     seen = []
     real = refine_module.refine_flow
     monkeypatch.setattr(refine_module, "refine_flow",
                         lambda a, b, init, cfg=None, static=None: seen.append(static) or real(a, b, init, cfg, static))
     row = refined(polished)
     row.config = dataclasses.replace(row.config, iterations=2)
-    row(pc1, pc2)
-    assert seen[-1] is not None and seen[-1].shape == (400,) and seen[-1].any()
+    row(pc1, pc2)  # no book: the polish runs inside the refinement
+    np.testing.assert_array_equal(seen[-1], want_static)
+    book = AnswerBook(pc1, pc2)
+    with book:
+        ask(polished, pc1, pc2)  # the polish's own row fills the book
+    other1, other2 = pc1 + 1.0, pc2 + 1.0
+    polished(other1, other2)  # the same polish on another scene in between
+    with book:
+        row(pc1, pc2)  # answered from the book: the marks come with the flow
+    np.testing.assert_array_equal(seen[-1], want_static)
     plain = RefinedMethod(Given(), RefineConfig(iterations=2))
     plain(pc1, pc2)
     assert seen[-1] is None
