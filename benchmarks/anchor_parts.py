@@ -48,6 +48,9 @@ PARTS: dict[str, dict[str, object]] = {
     "alldfkxgfdo": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
                     "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
                     "rigid_vote_density_m": 0.62, "eval_own_departure": True},
+    "alldfkxgfdov": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
+                     "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
+                     "rigid_vote_density_m": 0.62, "eval_own_departure": True, "eval_view_hold": True},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
@@ -60,7 +63,8 @@ that with its hypotheses also started along the optical axis (``rigid_vote_forwa
 thirty-seventh round), ``alldfkxgfd`` that with its starts also refined with each point weighed by its
 neighbourhood's density (``rigid_vote_density_m`` 0.62 m: the preset's since the thirty-eighth round),
 ``alldfkxgfdo`` that with the departures measured from the net's own camera motion (``eval_own_departure``: the
-preset's since the thirty-ninth round), ``none`` the net without any of them."""
+preset's since the thirty-ninth round), ``alldfkxgfdov`` that with the points whose rigid target leaves frame 2's view
+given their in-view neighbours' departure (``eval_view_hold``: the preset's since the fortieth round), ``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

@@ -155,6 +155,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "rigid fit of the finest level's flow) and adds it to the vote's motion "
                         "(model.eval_own_departure, inference only; needs the anchor): on, off (departures from the "
                         "vote's motion), or as trained; a change is named in the row")
+    r.add_argument("--view-hold", default="as-trained", choices=tuple(AS_TRAINED),
+                   help="each checkpoint's anchor gives a finest-level point whose target under the vote's camera "
+                        "motion leaves frame 2's view the median departure of its nearest points in view instead of "
+                        "its own (model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a "
+                        "change is named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -289,7 +294,7 @@ def _run(args) -> int:
     dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
                       vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density,
-                      own_departure=AS_TRAINED[args.own_departure])
+                      own_departure=AS_TRAINED[args.own_departure], view_hold=AS_TRAINED[args.view_hold])
             for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)

@@ -87,14 +87,16 @@ class NetMethod:
     vote's starts also refined with each point weighed by its neighbourhood's density; thirty-eighth round), named
     (", density rounds 0.62 m" / ", uniform rounds"). ``own_departure`` (true / false) overrides the inference-only
     ``model.eval_own_departure`` (the anchor's departures measured from the net's own camera motion; thirty-ninth
-    round), named (", own departures" / ", departures from the vote").
+    round), named (", own departures" / ", departures from the vote"). ``view_hold`` (true / false) overrides the
+    inference-only ``model.eval_view_hold`` (a point whose rigid target leaves frame 2's view takes its in-view
+    neighbours' departure; fortieth round), named (", view hold" / ", no view hold").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
                  evidence_dense: bool | None = None, vote_gap: float | None = None,
                  vote_forward: bool | None = None, vote_density: float | None = None,
-                 own_departure: bool | None = None) -> None:
+                 own_departure: bool | None = None, view_hold: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -136,7 +138,9 @@ class NetMethod:
                 ("rigid_vote_density_m", vote_density, float, "rigid vote to weigh its rounds by density",
                  lambda v: f", density rounds {v:g} m" if v else ", uniform rounds"),
                 ("eval_own_departure", own_departure, bool, "anchor to measure departures from its own motion",
-                 lambda v: ", own departures" if v else ", departures from the vote")):
+                 lambda v: ", own departures" if v else ", departures from the vote"),
+                ("eval_view_hold", view_hold, bool, "anchor to hold the points that leave the view",
+                 lambda v: ", view hold" if v else ", no view hold")):
             if override(field, value, lacks, lambda c, f=field, v=value, k=kind: replace(c, **{f: k(v)})):
                 suffix += note(value)
         cfg = ckpt["config"]

@@ -66,7 +66,7 @@ usable around any method, combines the two:
    the cluster that nothing explains, such as a car's new front end; a cluster that no pc2 point lies near
    explains nothing and scores as if every pair were ``static_scale_min`` off. With ``score_in_view`` the
    first mean runs only over the cluster's points that every motion compared keeps inside pc2's own field of
-   view (:class:`evaluation.view_prune.ViewExtent`: its azimuth and elevation range and depth, read from pc2):
+   view (:class:`core.view.ViewExtent`: its azimuth and elevation range and depth, read from pc2):
    a point carried out of view could not have been seen, so it is neither matched nor missed. A near car that
    comes closer loses its lower part below the sensor's lowest beam, and counted as missed those points made
    its true motion score worse than a fit that leaves it sliding along its own surface (docs/learned-flow.md,
@@ -105,10 +105,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.clusters import object_clusters, radius_components, view_interior
+from core.view import ViewExtent
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.pairing import PAIRINGS
-from evaluation.view_prune import ViewExtent, ViewPruneConfig, rigid_fit
+from evaluation.view_prune import ViewPruneConfig, rigid_fit
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
 
@@ -159,7 +160,7 @@ class RigidPolishConfig:
         for those the camera's motion leaves off pc2 (a near car coming closer lands on its own surface).
         Above the cloud's size: only those (the twenty-seventh round's polish).
     score_in_view: the two-way scores of a cluster's motions count in their first mean only the points that
-        every motion compared keeps inside pc2's own field of view (:class:`evaluation.view_prune.ViewExtent`,
+        every motion compared keeps inside pc2's own field of view (:class:`core.view.ViewExtent`,
         the view pruning's azimuth margin), when at least ``cluster_min_points`` are (step 6 of the module
         docstring); false = every point counts.
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the

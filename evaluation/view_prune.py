@@ -26,8 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.view import VIEW_MARGIN_DEG, ViewExtent
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
+
+__all__ = ["ViewExtent", "ViewPruneConfig", "ViewPruned", "inside_extent", "rigid_fit", "view_pruned"]
 
 
 @dataclass
@@ -37,43 +40,11 @@ class ViewPruneConfig:
     sigma, iterations, mad_factor: the rigid fit's Cauchy scale (metres), rounds and robust-scale factor
     (:func:`training.model.ego_motion.rigid_plus_residual`, the ego head's defaults)."""
 
-    margin_deg: float = 0.5
+    margin_deg: float = VIEW_MARGIN_DEG
     min_share: float = 0.25
     sigma: float = 0.25
     iterations: int = 4
     mad_factor: float = 3.0
-
-
-def _angles(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Azimuth ``atan2(x, z)`` and elevation ``atan2(−y, √(x² + z²))`` in degrees (camera frame)."""
-    p = np.asarray(points, np.float64)
-    return np.degrees(np.arctan2(p[:, 0], p[:, 2])), np.degrees(np.arctan2(-p[:, 1], np.hypot(p[:, 0], p[:, 2])))
-
-
-@dataclass(frozen=True)
-class ViewExtent:
-    """The field of view a cloud itself shows (camera frame, degrees and metres): its azimuth range narrowed
-    by a margin on each side, its elevation range and its farthest depth — read from the cloud alone, no
-    calibration. A point outside it could not have been seen in that frame."""
-
-    az_min: float
-    az_max: float
-    el_min: float
-    el_max: float
-    z_max: float
-
-    @classmethod
-    def of(cls, cloud: np.ndarray, margin_deg: float) -> "ViewExtent":
-        """The extent of ``cloud`` (M ≥ 1, 3), azimuth narrowed by ``margin_deg`` on each side."""
-        az, el = _angles(cloud)
-        return cls(float(az.min()) + margin_deg, float(az.max()) - margin_deg, float(el.min()), float(el.max()),
-                   float(np.asarray(cloud)[:, 2].max()))
-
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        """(N,) bool: which of ``points`` (N, 3), same camera frame, lie inside."""
-        az, el = _angles(points)
-        return ((az > self.az_min) & (az < self.az_max) & (el >= self.el_min) & (el <= self.el_max)
-                & (points[:, 2] > 0) & (points[:, 2] <= self.z_max))
 
 
 def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.ndarray:

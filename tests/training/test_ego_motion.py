@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from core.geometry import pose_vec_to_mat
-from training.model.ego_motion import own_departure, rigid_plus_residual, weighted_rigid_fit
+from training.model.ego_motion import hold_out_of_view, own_departure, rigid_plus_residual, weighted_rigid_fit
 
 
 def _scene(seed: int = 0, n: int = 600, movers: int = 60, noise: float = 0.1):
@@ -288,3 +288,48 @@ def test_own_departure_removes_the_flows_camera_error_so_the_held_gate_keeps_the
     held = rigid_plus_residual(p, flow, motion=hold, **kw).flow
     assert (kept[:, :60] - d).norm(dim=-1).max() < 0.01 and kept[:, 60:].norm(dim=-1).max() < 1e-4
     assert ((held[:, :60] * d).sum(-1) / 0.64).mean() < 0.5  # held: less than half of their departure along it
+
+
+def _view_scene() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Frame 1: a street in front of the camera (x in ±8 m, y ±1 m, z 5–30 m) and a wall beside it from x = 4 to
+    20 m at z 4–6 m; the camera moves 1.5 m forward (rigid flow −1.5 m along z). Frame 2: the street re-seen a
+    little wider (x ±9 m, y ±1.2 m, z 3–30 m in camera 2), so its azimuth range reaches ~71.6° (less the 0.5°
+    margin): every street target lies inside (at most 66°), the wall's far part (x beyond ~9.5 m at z 3–4.5 m) outside.
+    Returns (points (1, N, 3), rigid (1, N, 3), frame 2 (1, M, 3)), metres, camera frames."""
+    g = torch.Generator().manual_seed(5)
+
+    def box(n, half_x, half_y, z0, z1):
+        return torch.stack([(torch.rand(n, generator=g) * 2 - 1) * half_x, (torch.rand(n, generator=g) * 2 - 1) * half_y,
+                            torch.rand(n, generator=g) * (z1 - z0) + z0], -1)
+
+    wall = torch.stack([torch.linspace(4, 20, 60), torch.zeros(60), torch.linspace(4, 6, 60)], -1)
+    points = torch.cat([box(400, 8.0, 1.0, 5.0, 30.0), wall])[None].double()
+    rigid = torch.zeros_like(points)
+    rigid[..., 2] = -1.5
+    corners = torch.tensor([[9.0, 0.0, 3.0], [-9.0, 0.0, 3.0], [0.0, 1.2, 3.0], [0.0, -1.2, 3.0], [0.0, 0.0, 30.0]])
+    frame2 = torch.cat([box(600, 9.0, 1.2, 3.0, 30.0), corners])[None].double()
+    return points, rigid, frame2
+
+
+def test_points_that_leave_the_view_are_held_at_the_camera_motion_or_move_with_their_in_view_neighbours():
+    """HALFlowConfig.eval_view_hold: a point whose rigid target frame 2 could not have seen gives up its own departure;
+    with k > 1 it takes the median departure of its k nearest points in view instead."""
+    from core.view import ViewExtent
+
+    points, rigid, frame2 = _view_scene()
+    want = torch.from_numpy(ViewExtent.of(frame2[0].numpy()).contains((points + rigid)[0].numpy()))
+    assert want[:400].all() and 0 < int((~want[400:]).sum()) < 60  # the wall's far end only
+    flow = rigid.clone()
+    flow[:, 400:, 0] += 0.9  # the wall's points matched onto frame 2's nearest points: a false departure
+    held, inside = hold_out_of_view(points, flow, rigid, frame2)
+    assert torch.equal(inside[0], want)
+    assert torch.equal(held[0, want], flow[0, want]) and torch.equal(held[0, ~want], rigid[0, ~want])
+    near, _ = hold_out_of_view(points, flow, rigid, frame2, k=8)  # in-view neighbours: the wall's near part
+    assert torch.allclose(near[0, ~want, 0], rigid[0, ~want, 0] + 0.9)
+    still = flow.clone()
+    still[:, 400:] = rigid[:, 400:]
+    still[:, 400:][:, ~want[400:]] += 0.9  # only the part out of view departs: its in-view neighbours do not
+    kept, _ = hold_out_of_view(points, still, rigid, frame2, k=8)
+    assert torch.allclose(kept[0, ~want], rigid[0, ~want])
+    few, _ = hold_out_of_view(points[:, 380:], flow[:, 380:], rigid[:, 380:], frame2, k=500)  # fewer than k in view
+    assert torch.equal(few[0, ~want[380:]], rigid[0, 380:][~want[380:]])

@@ -227,3 +227,35 @@ def test_eval_own_departure_changes_inference_passes_only(monkeypatch):
     _flows(own.train(), pc1, pc2)
     assert calls == [own.config.level_points[0]]
     assert a.shape == b.shape and torch.isfinite(a).all() and not torch.equal(a, b)
+
+
+def test_eval_view_hold_needs_the_hold_at_the_vote_and_goes_with_the_anchor():
+    with pytest.raises(ConfigError, match="eval_view_hold"):
+        _cfg(eval_view_hold=True)
+    assert _cfg(eval_anchor=True, eval_view_hold=True).without_anchor().eval_view_hold is False
+    assert _cfg(eval_anchor=True, eval_view_hold=True, **ANCHORED).without_anchor().eval_view_hold is True
+
+
+def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
+    """The switch's wiring: an inference pass hands the finest level's points (camera 1), flow, the vote's rigid flow
+    and frame 2's whole input to :func:`~training.model.ego_motion.hold_out_of_view` and returns what it gives;
+    training steps, and the net without it, never call it."""
+    import training.model.halflownet as halflownet
+
+    calls: list[tuple] = []
+
+    def spy(points, flow, rigid, frame2, k=0):
+        calls.append((points.shape[1], frame2.shape[1], k))
+        assert points.shape == flow.shape == rigid.shape and frame2.shape[-1] == 3
+        return flow + 1.0, torch.ones(flow.shape[:2], dtype=torch.bool)  # a mark the output must carry
+
+    monkeypatch.setattr(halflownet, "hold_out_of_view", spy)
+    pc1, pc2 = _pair()
+    on, off = _anchored_twins(eval_view_hold=True)
+    a = _flows(on.eval(), pc1, pc2)[0]
+    level0 = on.config.level_points[0]
+    assert calls == [(level0, pc2.shape[1], on.config.at_inference().ego_gate_k)]  # the pass's gate neighbourhood
+    b = _flows(off.eval(), pc1, pc2)[0]
+    _flows(on.train(), pc1, pc2)
+    assert len(calls) == 1
+    assert torch.isfinite(a).all() and torch.allclose(a, b + 1.0, atol=1e-5)

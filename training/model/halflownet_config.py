@@ -171,6 +171,16 @@ class HALFlowConfig:
         is off the vote's by δ, every static point otherwise departs by about δ: the gate's scale (three robust
         standard deviations of the residuals) grows with δ and shuts on movers, and the movers that pass carry δ.
         Inference only, no gradient; a departure; false = departures from the vote's motion (thirty-ninth round).
+    eval_view_hold: with ``eval_anchor`` (or ``ego_l0_hold`` from ``"vote"``): at inference a finest-level point
+        whose target under the vote's camera motion lies outside the field of view frame 2's own input shows
+        (:class:`core.view.ViewExtent`: its azimuth range less 0.5° at each side, its elevation range, its farthest
+        depth) takes the component-wise median departure of its ``eval_gate_k`` nearest points that stay in view
+        instead of its own (none when the gate reads no neighbourhood):
+        frame 2 could not have seen it, so it holds no evidence of the point's motion, and its own flow can only
+        have been matched to something else (a near wall leaving the view "departed" 0.7–3 m onto frame 2's
+        nearest points); a mover's part that leaves the view moves with the part that stays.
+        :func:`training.model.ego_motion.hold_out_of_view`. Inference only, no gradient; a departure; false =
+        every point's own departure (fortieth round).
     """
 
     n_points: int = 8192
@@ -217,6 +227,7 @@ class HALFlowConfig:
     eval_gate_k: int = 0
     eval_evidence_dense: bool = False
     eval_own_departure: bool = False
+    eval_view_hold: bool = False
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -268,6 +279,9 @@ class HALFlowConfig:
         if self.eval_own_departure and not (self.eval_anchor or self.held_at_vote):
             raise ConfigError("model.eval_own_departure measures the anchor's departures: it needs model.eval_anchor "
                               "(or the finest level held at the vote's motion)")
+        if self.eval_view_hold and not (self.eval_anchor or self.held_at_vote):
+            raise ConfigError("model.eval_view_hold holds the anchor's departures of points that leave the view: it "
+                              "needs model.eval_anchor (or the finest level held at the vote's motion)")
         if self.eval_evidence_dense and not (self.eval_anchor or self.ego_gate_evidence):
             raise ConfigError("model.eval_evidence_dense changes the evidence test: it needs model.eval_anchor or "
                               "model.ego_gate_evidence")
@@ -314,12 +328,13 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, ``eval_own_departure``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
+        ``eval_gate_k``, ``eval_own_departure``, ``eval_view_hold``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
         ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and ``eval_evidence_dense``
         where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_own_departure=self.eval_own_departure and self.held_at_vote,
+                       eval_view_hold=self.eval_view_hold and self.held_at_vote,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
