@@ -311,25 +311,33 @@ def _view_scene() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     return points, rigid, frame2
 
 
-def test_points_that_leave_the_view_are_held_at_the_camera_motion_or_move_with_their_in_view_neighbours():
-    """HALFlowConfig.eval_view_hold: a point whose rigid target frame 2 could not have seen gives up its own departure;
-    with k > 1 it takes the median departure of its k nearest points in view instead."""
+def test_points_that_leave_the_view_are_held_at_the_camera_motion_unless_they_depart_with_their_in_view_neighbours():
+    """HALFlowConfig.eval_view_hold: a point whose rigid target frame 2 could not have seen gives up its own departure,
+    unless it departs as its k nearest points in view do (within ``agree`` metres of their median departure): then
+    it takes theirs."""
     from core.view import ViewExtent
 
     points, rigid, frame2 = _view_scene()
-    want = torch.from_numpy(ViewExtent.of(frame2[0].numpy()).contains((points + rigid)[0].numpy()))
-    assert want[:400].all() and 0 < int((~want[400:]).sum()) < 60  # the wall's far end only
+    out = ~torch.from_numpy(ViewExtent.of(frame2[0].numpy()).contains((points + rigid)[0].numpy()))
+    assert not out[:400].any() and 0 < int(out[400:].sum()) < 60  # the wall's far end only
     flow = rigid.clone()
-    flow[:, 400:, 0] += 0.9  # the wall's points matched onto frame 2's nearest points: a false departure
+    flow[:, 400:, 0] += 0.9  # the whole wall departs 0.9 m: its far part with its near part
     held, inside = hold_out_of_view(points, flow, rigid, frame2)
-    assert torch.equal(inside[0], want)
-    assert torch.equal(held[0, want], flow[0, want]) and torch.equal(held[0, ~want], rigid[0, ~want])
-    near, _ = hold_out_of_view(points, flow, rigid, frame2, k=8)  # in-view neighbours: the wall's near part
-    assert torch.allclose(near[0, ~want, 0], rigid[0, ~want, 0] + 0.9)
-    still = flow.clone()
-    still[:, 400:] = rigid[:, 400:]
-    still[:, 400:][:, ~want[400:]] += 0.9  # only the part out of view departs: its in-view neighbours do not
-    kept, _ = hold_out_of_view(points, still, rigid, frame2, k=8)
-    assert torch.allclose(kept[0, ~want], rigid[0, ~want])
+    assert torch.equal(inside[0], ~out)
+    assert torch.equal(held[0, ~out], flow[0, ~out]) and torch.equal(held[0, out], rigid[0, out])  # k = 0: held
+    moved, _ = hold_out_of_view(points, flow, rigid, frame2, k=8)
+    assert torch.allclose(moved[0, out], flow[0, out])  # departs with its in-view neighbours: theirs
+    alone = flow.clone()
+    alone[0, out, 0] += 0.5  # 0.5 m beyond its neighbours' departure: not with them
+    kept, _ = hold_out_of_view(points, alone, rigid, frame2, k=8)
+    assert torch.allclose(kept[0, out], rigid[0, out])
+    near = flow.clone()
+    near[0, out, 0] += 0.05  # within 0.1 m of their departure: with them, and it takes their median
+    close, _ = hold_out_of_view(points, near, rigid, frame2, k=8, agree=0.1)
+    assert torch.allclose(close[0, out], flow[0, out])
+    still = rigid.clone()
+    still[0, out, 0] += 0.9  # only the part out of view departs (a false match): its neighbours do not
+    stay, _ = hold_out_of_view(points, still, rigid, frame2, k=8)
+    assert torch.allclose(stay[0, out], rigid[0, out])
     few, _ = hold_out_of_view(points[:, 380:], flow[:, 380:], rigid[:, 380:], frame2, k=500)  # fewer than k in view
-    assert torch.equal(few[0, ~want[380:]], rigid[0, 380:][~want[380:]])
+    assert torch.equal(few[0, out[380:]], rigid[0, 380:][out[380:]])

@@ -244,8 +244,8 @@ def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
 
     calls: list[tuple] = []
 
-    def spy(points, flow, rigid, frame2, k=0):
-        calls.append((points.shape[1], frame2.shape[1], k))
+    def spy(points, flow, rigid, frame2, k=0, agree=0.1):
+        calls.append((points.shape[1], frame2.shape[1], k, agree))
         assert points.shape == flow.shape == rigid.shape and frame2.shape[-1] == 3
         return flow + 1.0, torch.ones(flow.shape[:2], dtype=torch.bool)  # a mark the output must carry
 
@@ -254,7 +254,8 @@ def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
     on, off = _anchored_twins(eval_view_hold=True)
     a = _flows(on.eval(), pc1, pc2)[0]
     level0 = on.config.level_points[0]
-    assert calls == [(level0, pc2.shape[1], on.config.at_inference().ego_gate_k)]  # the pass's gate neighbourhood
+    inference = on.config.at_inference()
+    assert calls == [(level0, pc2.shape[1], inference.ego_gate_k, inference.ego_sigma)]  # the pass's gate and scale
     b = _flows(off.eval(), pc1, pc2)[0]
     _flows(on.train(), pc1, pc2)
     assert len(calls) == 1

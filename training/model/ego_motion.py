@@ -186,7 +186,7 @@ def own_departure(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations:
     return flow - (points @ split.R.transpose(1, 2) + split.t[:, None] - points)
 
 
-def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor, k: int = 0,
+def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor, k: int = 0, agree: float = 0.1,
                      margin_deg: float = VIEW_MARGIN_DEG) -> tuple[Tensor, Tensor]:
     """Hold the points whose rigid target leaves frame 2's view: ``(flow', inside)``.
 
@@ -194,10 +194,11 @@ def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor
     motion's flow ``T p − p`` (camera 1 → camera 2, metres); ``frame2`` (B, M, 3): frame 2's cloud, camera 2.
     ``inside`` (B, N) bool: the rigid target ``p + rigid`` lies in the field of view frame 2 itself shows
     (:class:`core.view.ViewExtent`, ``margin_deg`` at each side). Frame 2 could not have seen a point whose
-    rigid target lies outside, so it holds no evidence that the point moved: its departure ``flow − rigid``
-    is replaced by the component-wise median departure of its ``k`` nearest inside points (a mover's part that
-    leaves the view moves with the part that stays; a static point beside static ones takes none), or by
-    none with ``k`` ≤ 1 or fewer than ``k`` inside. Inside points keep their flow. No gradient."""
+    rigid target lies outside, so it holds no evidence that the point moved: such a point takes the rigid flow,
+    unless its own departure ``flow − rigid`` lies within ``agree`` metres of the component-wise median departure
+    of its ``k`` nearest inside points — it departs with them, as a mover's part that leaves the view departs with
+    the part that stays — and then takes that median. With ``k`` ≤ 1, or fewer than ``k`` points inside, every
+    outside point takes the rigid flow. Inside points keep their flow. No gradient."""
     with torch.no_grad():
         targets = (points + rigid).detach().cpu().numpy()
         clouds = frame2.detach().cpu().numpy()
@@ -205,12 +206,15 @@ def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor
                                             for c, t in zip(clouds, targets)])).to(flow.device)
         out = flow.clone()
         for b in range(flow.shape[0]):
-            out_b, keep = out[b], inside[b]
+            keep = inside[b]
             if bool(keep.all()):
                 continue
             taken = rigid[b, ~keep]
             if k > 1 and int(keep.sum()) >= k:
                 _, near = knn(points[b, ~keep][None], points[b, keep][None], k)
-                taken = taken + group((flow[b, keep] - rigid[b, keep])[None], near)[0].median(dim=1).values
-            out_b[~keep] = taken
+                shared = group((flow[b, keep] - rigid[b, keep])[None], near)[0].median(dim=1).values
+                own = flow[b, ~keep] - rigid[b, ~keep]
+                with_them = ((own - shared).norm(dim=-1) < agree)[:, None]
+                taken = taken + torch.where(with_them, shared, torch.zeros_like(shared))
+            out[b, ~keep] = taken
     return out, inside

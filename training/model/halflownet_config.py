@@ -174,11 +174,11 @@ class HALFlowConfig:
     eval_view_hold: with ``eval_anchor`` (or ``ego_l0_hold`` from ``"vote"``): at inference a finest-level point
         whose target under the vote's camera motion lies outside the field of view frame 2's own input shows
         (:class:`core.view.ViewExtent`: its azimuth range less 0.5° at each side, its elevation range, its farthest
-        depth) takes the component-wise median departure of its ``eval_gate_k`` nearest points that stay in view
-        instead of its own (none when the gate reads no neighbourhood):
-        frame 2 could not have seen it, so it holds no evidence of the point's motion, and its own flow can only
-        have been matched to something else (a near wall leaving the view "departed" 0.7–3 m onto frame 2's
-        nearest points); a mover's part that leaves the view moves with the part that stays.
+        depth) takes the vote's motion, unless its own departure lies within ``ego_sigma`` of the component-wise
+        median departure of its ``eval_gate_k`` nearest points in view, and then that median: frame 2 could not
+        have seen it, so it holds no evidence of the point's motion, and its own flow can only have been matched to
+        something else (near walls leaving the view "departed" 0.7–3 m onto frame 2's nearest points), while a
+        mover's part that leaves the view departs with the part that stays.
         :func:`training.model.ego_motion.hold_out_of_view`. Inference only, no gradient; a departure; false =
         every point's own departure (fortieth round).
     """
