@@ -322,15 +322,16 @@ def test_points_that_leave_the_view_are_held_at_the_camera_motion_unless_they_de
     assert not out[:400].any() and 0 < int(out[400:].sum()) < 60  # the wall's far end only
     flow = rigid.clone()
     flow[:, 400:, 0] += 0.9  # the whole wall departs 0.9 m: its far part with its near part
-    held, inside = hold_out_of_view(points, flow, rigid, frame2)
-    assert torch.equal(inside[0], ~out)
+    held, marked = hold_out_of_view(points, flow, rigid, frame2)
+    assert torch.equal(marked[0], out)
     assert torch.equal(held[0, ~out], flow[0, ~out]) and torch.equal(held[0, out], rigid[0, out])  # k = 0: held
-    moved, _ = hold_out_of_view(points, flow, rigid, frame2, k=8)
+    moved, marked = hold_out_of_view(points, flow, rigid, frame2, k=8)
     assert torch.allclose(moved[0, out], flow[0, out])  # departs with its in-view neighbours: theirs
+    assert not marked.any()
     alone = flow.clone()
     alone[0, out, 0] += 0.5  # 0.5 m beyond its neighbours' departure: not with them
-    kept, _ = hold_out_of_view(points, alone, rigid, frame2, k=8)
-    assert torch.allclose(kept[0, out], rigid[0, out])
+    kept, marked = hold_out_of_view(points, alone, rigid, frame2, k=8)
+    assert torch.allclose(kept[0, out], rigid[0, out]) and torch.equal(marked[0], out)
     near = flow.clone()
     near[0, out, 0] += 0.05  # within 0.1 m of their departure: with them, and it takes their median
     close, _ = hold_out_of_view(points, near, rigid, frame2, k=8, agree=0.1)

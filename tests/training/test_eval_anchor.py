@@ -247,7 +247,7 @@ def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
     def spy(points, flow, rigid, frame2, k=0, agree=0.1):
         calls.append((points.shape[1], frame2.shape[1], k, agree))
         assert points.shape == flow.shape == rigid.shape and frame2.shape[-1] == 3
-        return flow + 1.0, torch.ones(flow.shape[:2], dtype=torch.bool)  # a mark the output must carry
+        return flow + 1.0, torch.zeros(flow.shape[:2], dtype=torch.bool)  # a mark the output must carry; none held
 
     monkeypatch.setattr(halflownet, "hold_out_of_view", spy)
     pc1, pc2 = _pair()
@@ -260,3 +260,8 @@ def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
     _flows(on.train(), pc1, pc2)
     assert len(calls) == 1
     assert torch.isfinite(a).all() and torch.allclose(a, b + 1.0, atol=1e-5)
+    monkeypatch.setattr(halflownet, "hold_out_of_view",
+                        lambda points, flow, rigid, frame2, k=0, agree=0.1: (rigid, torch.ones(flow.shape[:2], dtype=torch.bool)))
+    with torch.no_grad():
+        every = on.eval()(pc1, pc2)
+    assert torch.equal(every.gates[0], torch.zeros_like(every.gates[0]))  # every point held: no gate left open

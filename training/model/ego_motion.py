@@ -188,23 +188,23 @@ def own_departure(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations:
 
 def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor, k: int = 0, agree: float = 0.1,
                      margin_deg: float = VIEW_MARGIN_DEG) -> tuple[Tensor, Tensor]:
-    """Hold the points whose rigid target leaves frame 2's view: ``(flow', inside)``.
+    """Hold the points whose rigid target leaves frame 2's view: ``(flow', held)``.
 
     ``points`` (B, N, 3): frame-1 points, camera 1; ``flow``, ``rigid`` (B, N, 3): their flow and the camera
     motion's flow ``T p − p`` (camera 1 → camera 2, metres); ``frame2`` (B, M, 3): frame 2's cloud, camera 2.
-    ``inside`` (B, N) bool: the rigid target ``p + rigid`` lies in the field of view frame 2 itself shows
-    (:class:`core.view.ViewExtent`, ``margin_deg`` at each side). Frame 2 could not have seen a point whose
-    rigid target lies outside, so it holds no evidence that the point moved: such a point takes the rigid flow,
+    A point is outside when its rigid target ``p + rigid`` lies outside the field of view frame 2 itself shows
+    (:class:`core.view.ViewExtent`, ``margin_deg`` at each side). Frame 2 could not have seen it, so it holds no
+    evidence that the point moved: such a point takes the rigid flow (``held`` (B, N) bool marks these),
     unless its own departure ``flow − rigid`` lies within ``agree`` metres of the component-wise median departure
     of its ``k`` nearest inside points — it departs with them, as a mover's part that leaves the view departs with
     the part that stays — and then takes that median. With ``k`` ≤ 1, or fewer than ``k`` points inside, every
-    outside point takes the rigid flow. Inside points keep their flow. No gradient."""
+    outside point takes the rigid flow. Inside points keep their flow and are not held. No gradient."""
     with torch.no_grad():
         targets = (points + rigid).detach().cpu().numpy()
         clouds = frame2.detach().cpu().numpy()
         inside = torch.from_numpy(np.stack([ViewExtent.of(c, margin_deg).contains(t)
                                             for c, t in zip(clouds, targets)])).to(flow.device)
-        out = flow.clone()
+        out, held = flow.clone(), ~inside
         for b in range(flow.shape[0]):
             keep = inside[b]
             if bool(keep.all()):
@@ -214,7 +214,8 @@ def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor
                 _, near = knn(points[b, ~keep][None], points[b, keep][None], k)
                 shared = group((flow[b, keep] - rigid[b, keep])[None], near)[0].median(dim=1).values
                 own = flow[b, ~keep] - rigid[b, ~keep]
-                with_them = ((own - shared).norm(dim=-1) < agree)[:, None]
-                taken = taken + torch.where(with_them, shared, torch.zeros_like(shared))
+                with_them = (own - shared).norm(dim=-1) < agree
+                taken = taken + torch.where(with_them[:, None], shared, torch.zeros_like(shared))
+                held[b, ~keep] = ~with_them
             out[b, ~keep] = taken
-    return out, inside
+    return out, held

@@ -382,9 +382,9 @@ class HALFlowNet(nn.Module):
             rigids = [r if r is None else back(r, p1.xyz[i]) for i, r in enumerate(rigids)]
         if cfg.eval_view_hold and cfg.held_at_vote and not self.training:  # camera frames again: the points whose
             # vote-moved target frame 2 could not have seen depart only with their in-view neighbours (eval_view_hold)
-            flows[0], inside = hold_out_of_view(p1.xyz[0] + centre, flows[0], rigids[0], pc2, cfg.ego_gate_k,
-                                                cfg.ego_sigma)
-            gates[0] = gates[0] * inside.to(gates[0].dtype)
+            flows[0], held = hold_out_of_view(p1.xyz[0] + centre, flows[0], rigids[0], pc2, cfg.ego_gate_k,
+                                              cfg.ego_sigma)
+            gates[0] = gates[0] * (~held).to(gates[0].dtype)
         idx1, idx2 = p1.idx[:4], p2.idx[:4]
         return FlowOutput(
             flows=flows,
