@@ -3,6 +3,11 @@ target must be one the other frame could have seen — the evaluation's view pru
 score (:mod:`evaluation.view_prune`, :mod:`evaluation.rigid_polish`) and the net's hold of the points that leave
 the view (``HALFlowConfig.eval_view_hold``).
 
+A camera-frustum cloud (KITTI's stereo and LiDAR test sets cut to the camera's view) shows a sector ahead of the
+camera; a surround LiDAR sweep (Argoverse 2, Waymo through the OpenSceneFlow reader) shows the whole circle but for
+the sectors where it has no return. Both read the same way: the sector seen is the circle less the widest azimuth
+gap between the cloud's points.
+
 Camera frame: x right, y down, z forward, metres; angles in degrees.
 """
 
@@ -25,25 +30,37 @@ def view_angles(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class ViewExtent:
-    """The field of view a cloud itself shows (camera frame, degrees and metres): its azimuth range narrowed
-    by a margin on each side, its elevation range and its farthest depth — read from the cloud alone, no
-    calibration. A point outside it could not have been seen in that frame."""
+    """The field of view a cloud itself shows (camera frame, degrees and metres), read from the cloud alone: the
+    azimuth sector from ``start`` over ``span`` degrees (the circle less the cloud's widest azimuth gap) narrowed by
+    a margin at each side, its elevation range, and its reach — its farthest depth ``z`` for a sector ahead of the
+    camera (every azimuth within ±90°: a camera frustum, whose far cut is a depth), else its farthest horizontal
+    range (a surround sweep). A point outside it could not have been seen in that frame."""
 
-    az_min: float
-    az_max: float
+    start: float
+    span: float
     el_min: float
     el_max: float
-    z_max: float
+    reach: float
+    ahead: bool
 
     @classmethod
     def of(cls, cloud: np.ndarray, margin_deg: float = VIEW_MARGIN_DEG) -> "ViewExtent":
-        """The extent of ``cloud`` (M ≥ 1, 3), azimuth narrowed by ``margin_deg`` on each side."""
-        az, el = view_angles(cloud)
-        return cls(float(az.min()) + margin_deg, float(az.max()) - margin_deg, float(el.min()), float(el.max()),
-                   float(np.asarray(cloud)[:, 2].max()))
+        """The extent of ``cloud`` (M ≥ 1, 3), its azimuth sector narrowed by ``margin_deg`` on each side."""
+        p = np.asarray(cloud, np.float64)
+        az, el = view_angles(p)
+        ring = np.sort(az)
+        gaps = np.append(np.diff(ring), ring[0] + 360.0 - ring[-1])  # gap after each azimuth, the last wrapping round
+        widest = int(np.argmax(gaps))
+        start = ring[(widest + 1) % len(ring)]
+        span = 360.0 - float(gaps[widest])
+        ahead = bool(start > -90.0 and start + span < 90.0)
+        reach = float(p[:, 2].max()) if ahead else float(np.hypot(p[:, 0], p[:, 2]).max())
+        return cls(float(start) + margin_deg, span - 2 * margin_deg, float(el.min()), float(el.max()), reach, ahead)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: which of ``points`` (N, 3), same camera frame, lie inside."""
-        az, el = view_angles(points)
-        return ((az > self.az_min) & (az < self.az_max) & (el >= self.el_min) & (el <= self.el_max)
-                & (np.asarray(points)[:, 2] > 0) & (np.asarray(points)[:, 2] <= self.z_max))
+        p = np.asarray(points, np.float64)
+        az, el = view_angles(p)
+        along = np.mod(az - self.start, 360.0)  # degrees past the sector's first edge
+        near = (p[:, 2] > 0) & (p[:, 2] <= self.reach) if self.ahead else np.hypot(p[:, 0], p[:, 2]) <= self.reach
+        return (along > 0) & (along < self.span) & (el >= self.el_min) & (el <= self.el_max) & near
