@@ -66,7 +66,7 @@ usable around any method, combines the two:
    the cluster that nothing explains, such as a car's new front end; a cluster that no pc2 point lies near
    explains nothing and scores as if every pair were ``static_scale_min`` off. With ``score_in_view`` the
    first mean runs only over the cluster's points that every motion compared keeps inside pc2's own field of
-   view (:class:`core.view.ViewExtent`: its azimuth and elevation range and depth, read from pc2):
+   view (:class:`core.view.ViewExtent`: its azimuth sector, elevation range and reach, read from pc2):
    a point carried out of view could not have been seen, so it is neither matched nor missed. A near car that
    comes closer loses its lower part below the sensor's lowest beam, and counted as missed those points made
    its true motion score worse than a fit that leaves it sliding along its own surface (docs/learned-flow.md,

@@ -11,8 +11,9 @@ method:
 1. runs the method on the whole clouds and fits one rigid motion (R, t) to its flow (IRLS with Cauchy
    weights, :func:`training.model.ego_motion.rigid_plus_residual`);
 2. marks the frame-t points whose rigid target ``R p + t`` falls outside pc2's own extent — its azimuth
-   range narrowed by ``margin_deg`` on each side, its elevation range and its farthest depth, all read
-   from pc2 itself, so no label, pose or calibration is used;
+   sector (the circle less its widest azimuth gap) narrowed by ``margin_deg`` on each side, its elevation
+   range and its farthest depth (its farthest horizontal range for a surround sweep), all read from pc2
+   itself, so no label, pose or calibration is used (:class:`core.view.ViewExtent`);
 3. runs the method again on the remaining points (topped up by repeats to the input size) and pc2; the
    marked points take the rigid flow.
 
@@ -48,8 +49,9 @@ class ViewPruneConfig:
 
 
 def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.ndarray:
-    """(N,) bool: ``points`` (camera-2 frame) within pc2's azimuth range (less ``margin_deg`` each side),
-    its elevation range and nearer than its farthest point along z (:class:`ViewExtent`)."""
+    """(N,) bool: ``points`` (camera-2 frame) within pc2's azimuth sector (less ``margin_deg`` each side),
+    its elevation range and its reach (:class:`ViewExtent`: its farthest depth for a sector ahead of the camera,
+    its farthest horizontal range for a surround sweep)."""
     return ViewExtent.of(pc2, margin_deg).contains(points)
 
 
