@@ -64,7 +64,7 @@ thirty-seventh round), ``alldfkxgfd`` that with its starts also refined with eac
 neighbourhood's density (``rigid_vote_density_m`` 0.62 m: the preset's since the thirty-eighth round),
 ``alldfkxgfdo`` that with the departures measured from the net's own camera motion (``eval_own_departure``: the
 preset's since the thirty-ninth round), ``alldfkxgfdov`` that with the points whose rigid target leaves frame 2's view
-given their in-view neighbours' departure (``eval_view_hold``: the preset's since the fortieth round), ``none`` the net without any of them."""
+held at the vote's motion unless they depart with their in-view neighbours (``eval_view_hold``: the preset's since the fortieth round), ``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

@@ -156,10 +156,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(model.eval_own_departure, inference only; needs the anchor): on, off (departures from the "
                         "vote's motion), or as trained; a change is named in the row")
     r.add_argument("--view-hold", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's anchor gives a finest-level point whose target under the vote's camera "
-                        "motion leaves frame 2's view the median departure of its nearest points in view instead of "
-                        "its own (model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a "
-                        "change is named in the row")
+                   help="each checkpoint's anchor holds a finest-level point whose target under the vote's camera "
+                        "motion leaves frame 2's view at the vote's motion, unless its own departure lies within "
+                        "ego_sigma of its nearest in-view points' median departure, which it then takes "
+                        "(model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a change "
+                        "is named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "

@@ -88,8 +88,8 @@ class NetMethod:
     (", density rounds 0.62 m" / ", uniform rounds"). ``own_departure`` (true / false) overrides the inference-only
     ``model.eval_own_departure`` (the anchor's departures measured from the net's own camera motion; thirty-ninth
     round), named (", own departures" / ", departures from the vote"). ``view_hold`` (true / false) overrides the
-    inference-only ``model.eval_view_hold`` (a point whose rigid target leaves frame 2's view takes its in-view
-    neighbours' departure; fortieth round), named (", view hold" / ", no view hold").
+    inference-only ``model.eval_view_hold`` (a point whose rigid target leaves frame 2's view is held at the vote's
+    motion unless it departs with its in-view neighbours; fortieth round), named (", view hold" / ", no view hold").
     """
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,

@@ -109,7 +109,7 @@ from core.view import ViewExtent
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.pairing import PAIRINGS
-from evaluation.view_prune import ViewPruneConfig, rigid_fit
+from evaluation.view_prune import rigid_fit
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
 
@@ -161,7 +161,7 @@ class RigidPolishConfig:
         Above the cloud's size: only those (the twenty-seventh round's polish).
     score_in_view: the two-way scores of a cluster's motions count in their first mean only the points that
         every motion compared keeps inside pc2's own field of view (:class:`core.view.ViewExtent`,
-        the view pruning's azimuth margin), when at least ``cluster_min_points`` are (step 6 of the module
+        its azimuth margin, the view pruning's too), when at least ``cluster_min_points`` are (step 6 of the module
         docstring); false = every point counts.
     ego_check: before step 2, weigh the ego-motion fitted to the method's flow against the camera motions the
         rigid vote finds without it, and after step 3 refuse a registration that explains less of the scene
@@ -302,7 +302,7 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         if cfg.objects:
             _polish_clusters(p1, p2, out, T, static, gap, cfg)
         if cfg.rigid_objects:
-            view = ViewExtent.of(p2, ViewPruneConfig.margin_deg) if cfg.score_in_view else None
+            view = ViewExtent.of(p2) if cfg.score_in_view else None
             _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
     return out.astype(np.float32), T, static
 

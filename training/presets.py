@@ -33,8 +33,8 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     started along the camera's optical axis (``model.rigid_vote_forward``, thirty-seventh round) and also refined with
     each point weighed by its neighbourhood's density (``model.rigid_vote_density_m``, thirty-eighth round), and the
     finest level's departures measured from the net's own camera motion (``model.eval_own_departure``, thirty-ninth
-    round) and a point whose target under the vote's motion leaves frame 2's view given its in-view neighbours'
-    departure (``model.eval_view_hold``, fortieth round);
+    round) and a point whose target under the vote's motion leaves frame 2's view held at it unless it departs
+    with its in-view neighbours (``model.eval_view_hold``, fortieth round);
     ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict

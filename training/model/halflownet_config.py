@@ -173,8 +173,8 @@ class HALFlowConfig:
         Inference only, no gradient; a departure; false = departures from the vote's motion (thirty-ninth round).
     eval_view_hold: with ``eval_anchor`` (or ``ego_l0_hold`` from ``"vote"``): at inference a finest-level point
         whose target under the vote's camera motion lies outside the field of view frame 2's own input shows
-        (:class:`core.view.ViewExtent`: its azimuth range less 0.5° at each side, its elevation range, its farthest
-        depth) takes the vote's motion, unless its own departure lies within ``ego_sigma`` of the component-wise
+        (:class:`core.view.ViewExtent`: its azimuth sector less 0.5° at each side, its elevation range, its
+        reach) takes the vote's motion, unless its own departure lies within ``ego_sigma`` of the component-wise
         median departure of its ``eval_gate_k`` nearest points in view, and then that median: frame 2 could not
         have seen it, so it holds no evidence of the point's motion, and its own flow can only have been matched to
         something else (near walls leaving the view "departed" 0.7–3 m onto frame 2's nearest points), while a
