@@ -31,7 +31,7 @@ from core.view import VIEW_MARGIN_DEG, ViewExtent
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
 
-__all__ = ["ViewExtent", "ViewPruneConfig", "ViewPruned", "inside_extent", "rigid_fit", "view_pruned"]
+__all__ = ["ViewPruneConfig", "ViewPruned", "inside_extent", "rigid_fit", "view_pruned"]
 
 
 @dataclass

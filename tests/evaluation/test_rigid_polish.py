@@ -7,7 +7,7 @@ import pytest
 
 from evaluation.baselines.base import apply_transform, transform_error
 from evaluation.rigid_polish import RigidPolishConfig, RigidPolished, _in_view, _two_way_score, polish_rigid
-from evaluation.view_prune import ViewExtent
+from core.view import ViewExtent
 from evaluation.methods import make_method
 from testkit.rigid_scene import SMALL, box_surface, motion, scene_pair
 

@@ -207,15 +207,15 @@ def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor
         out, held = flow.clone(), ~inside
         for b in range(flow.shape[0]):
             keep = inside[b]
-            if bool(keep.all()):
+            away = ~keep  # the points outside: held unless they depart with their inside neighbours
+            if not bool(away.any()):
                 continue
-            taken = rigid[b, ~keep]
+            taken = rigid[b, away]
             if k > 1 and int(keep.sum()) >= k:
-                _, near = knn(points[b, ~keep][None], points[b, keep][None], k)
+                _, near = knn(points[b, away][None], points[b, keep][None], k)
                 shared = group((flow[b, keep] - rigid[b, keep])[None], near)[0].median(dim=1).values
-                own = flow[b, ~keep] - rigid[b, ~keep]
-                with_them = (own - shared).norm(dim=-1) < agree
+                with_them = (flow[b, away] - taken - shared).norm(dim=-1) < agree
                 taken = taken + torch.where(with_them[:, None], shared, torch.zeros_like(shared))
-                held[b, ~keep] = ~with_them
-            out[b, ~keep] = taken
+                held[b, away] = ~with_them
+            out[b, away] = taken
     return out, held
