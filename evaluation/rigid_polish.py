@@ -8,7 +8,7 @@ static error on the demo's split), but started inside the right basin it is prec
 usable around any method, combines the two:
 
 1. runs the method and fits one rigid motion ``T₀ = (R, t)`` to its flow robustly
-   (:func:`evaluation.view_prune.rigid_fit`, IRLS with Cauchy weights);
+   (:func:`evaluation.rigid_fit.rigid_fit`, IRLS with Cauchy weights);
 1b. (``ego_check``) weighs ``T₀`` against the camera motions that the rigid vote finds without the method
    (:mod:`training.model.rigid_vote`): the vote's translation hypotheses, the fullest maxima of the same
    histogram with each frame-1 point's pairs weighted by its range, and ``T₀`` itself, each refined by the
@@ -109,7 +109,7 @@ from core.view import ViewExtent
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
 from evaluation.pairing import PAIRINGS
-from evaluation.view_prune import rigid_fit
+from evaluation.rigid_fit import rigid_fit
 from evaluation.answers import ask
 from evaluation.wrapping import MethodWrapper
 
@@ -126,7 +126,7 @@ class RigidPolishConfig:
     min_points: fewer points agreeing with the method's rigid motion than this: the method's flow is
         returned unchanged.
     sigma, fit_iterations: the Cauchy scale (metres) and rounds of the rigid fit to the method's flow
-        (:func:`evaluation.view_prune.rigid_fit`).
+        (:func:`evaluation.rigid_fit.rigid_fit`).
     objects: also polish each cluster of the points left out of the ego-motion (step 5 of the module
         docstring); false = the ego-motion only.
     cluster_radius: metres; points of one cluster are linked by hops shorter than this.
@@ -211,6 +211,7 @@ class RigidPolishConfig:
     ego_check_points: int = 512
     ego_check_voxel: float = 1.0
     pairs_check: float = 0.0
+    level_starts: bool = False
 
     @classmethod
     def for_pairing(cls, pairing: str = "surface") -> "RigidPolishConfig":
@@ -373,11 +374,15 @@ def _explained(p1: np.ndarray, p2: np.ndarray, T: np.ndarray, static: np.ndarray
     return gap, np.where(gap < cfg.static_scale_min, rows[near], -1)
 
 
-def _median_start(T: np.ndarray, pts: np.ndarray, flow: np.ndarray) -> np.ndarray:
+def _median_start(T: np.ndarray, pts: np.ndarray, flow: np.ndarray, level: bool = False) -> np.ndarray:
     """The ego-motion ``T`` plus the median disagreement with it of the flow ``flow`` (k, 3) at ``pts`` (k, 3): the
-    method's own guess of a cluster's rigid motion (4×4)."""
+    method's own guess of a cluster's rigid motion (4×4); with ``level`` that disagreement's vertical part (camera
+    y) is dropped (``RigidPolishConfig.level_starts``)."""
     start = T.copy()
-    start[:3, 3] += np.median(pts + flow - apply_transform(T, pts), axis=0)
+    departure = np.median(pts + flow - apply_transform(T, pts), axis=0)
+    if level:
+        departure[1] = 0.0
+    start[:3, 3] += departure
     return start
 
 
@@ -407,7 +412,7 @@ def _polish_clusters(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.nda
         if len(rows) < cfg.cluster_min_points:
             continue
         pts = p1[rows]
-        start = _median_start(T, pts, flow[rows])
+        start = _median_start(T, pts, flow[rows], cfg.level_starts)
         moved = apply_transform(icp(pts, free, icp_cfg, init=start).transform, pts)
         dist, _ = free_tree.query(moved)
         if (dist < cfg.static_scale_min).mean() > cfg.cluster_min_fitness:
@@ -474,7 +479,7 @@ def _rigid_objects(p1: np.ndarray, p2: np.ndarray, flow: np.ndarray, T: np.ndarr
         target = p2[(owner < 0) | member[owner]]  # unexplained, or explained by this cluster itself (owner −1
         # reads member[-1], which the first test has already settled)
         pts = p1[idx]
-        median = _median_start(T, pts, flow[idx])
+        median = _median_start(T, pts, flow[idx], cfg.level_starts)
         moved = apply_transform(median, pts)
         if len(target) < cfg.cluster_min_points:
             flow[idx] = moved - pts

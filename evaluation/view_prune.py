@@ -9,7 +9,7 @@ no correct match to learn for them (docs/learned-flow.md, third round). This wra
 method:
 
 1. runs the method on the whole clouds and fits one rigid motion (R, t) to its flow (IRLS with Cauchy
-   weights, :func:`training.model.ego_motion.rigid_plus_residual`);
+   weights, :func:`evaluation.rigid_fit.rigid_fit`);
 2. marks the frame-t points whose rigid target ``R p + t`` falls outside pc2's own extent — its azimuth
    sector (the circle less its widest azimuth gap) narrowed by ``margin_deg`` on each side, its elevation
    range and its farthest depth (its farthest horizontal range for a surround sweep), all read from pc2
@@ -29,9 +29,10 @@ import numpy as np
 
 from core.view import VIEW_MARGIN_DEG, ViewExtent
 from evaluation.answers import ask
+from evaluation.rigid_fit import rigid_fit
 from evaluation.wrapping import MethodWrapper
 
-__all__ = ["ViewPruneConfig", "ViewPruned", "inside_extent", "rigid_fit", "view_pruned"]
+__all__ = ["ViewPruneConfig", "ViewPruned", "inside_extent", "view_pruned"]
 
 
 @dataclass
@@ -53,21 +54,6 @@ def inside_extent(points: np.ndarray, pc2: np.ndarray, margin_deg: float) -> np.
     its elevation range and its reach (:class:`ViewExtent`: its farthest depth for a sector ahead of the camera,
     its farthest horizontal range for a surround sweep)."""
     return ViewExtent.of(pc2, margin_deg).contains(points)
-
-
-def rigid_fit(pc1: np.ndarray, flow: np.ndarray, sigma: float = 0.25, iterations: int = 4,
-              mad_factor: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
-    """(R (3, 3), t (3,)) fitted robustly to ``flow`` at ``pc1`` (camera 1 → camera 2, metres); ``sigma``
-    (metres), ``iterations`` and ``mad_factor`` as :func:`training.model.ego_motion.rigid_plus_residual`."""
-    import torch
-
-    from training.model.ego_motion import rigid_plus_residual
-
-    def t(x):
-        return torch.tensor(np.asarray(x, np.float64))[None]
-
-    split = rigid_plus_residual(t(pc1), t(flow), sigma, iterations, mad_factor)
-    return split.R[0].numpy(), split.t[0].numpy()
 
 
 class ViewPruned(MethodWrapper):

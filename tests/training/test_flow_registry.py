@@ -216,3 +216,22 @@ def test_a_model_config_field_this_code_does_not_know_is_named(tmp_path: Path) -
     with pytest.raises(InputError, match=r"future.pt: checkpoint's model config has a field this version of the "
                                          r"halflownet net does not know: 'eval_departure_from'"):
         restore_flow_net(ckpt, tmp_path / "future.pt")
+    ckpt["config"]["model"]["eval_rounds"] = 3  # every unknown field is named, in order
+    with pytest.raises(InputError, match=r"has fields this version of the halflownet net does not know: "
+                                         r"'eval_departure_from', 'eval_rounds'"):
+        restore_flow_net(ckpt, tmp_path / "future.pt")
+
+
+def test_an_older_run_s_field_is_read_not_refused(tmp_path: Path) -> None:
+    """``batch_norm`` (before ``norm`` replaced it) is no field of the config any more, yet a checkpoint holding it
+    is an older run's, not a newer one's: it restores, as it trained."""
+    from testkit.flow_checkpoint import tiny_flow_checkpoint
+    from training.model.registry import restore_flow_net
+    from training.runtime.checkpoints import load_checkpoint
+
+    ckpt = load_checkpoint(tiny_flow_checkpoint(tmp_path / "old.pt"), kind="flow")
+    model = ckpt["config"]["model"]
+    norm = model.pop("norm")
+    model["batch_norm"] = norm == "batch"
+    _, config, _ = restore_flow_net(ckpt, tmp_path / "old.pt")
+    assert config.norm == ("batch" if norm == "batch" else "none")

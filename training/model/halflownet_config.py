@@ -5,7 +5,7 @@ Keeps the :class:`~training.model.contract.FlowNetConfig` contract."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, ClassVar
 
 from core.errors import ConfigError
 from training.choices import BACKENDS, NORMS
@@ -310,13 +310,17 @@ class HALFlowConfig:
         if self.set_conv_pooling not in ("max", "attentive"):
             raise ConfigError(f"set_conv_pooling must be 'max' or 'attentive', got {self.set_conv_pooling!r}")
 
+    legacy_fields: ClassVar[tuple[str, ...]] = ("batch_norm",)
+    """Fields of older runs that :meth:`from_saved` reads (``training.model.registry`` accepts them in a checkpoint)."""
+
     @classmethod
     def from_saved(cls, fields: dict[str, Any]) -> "HALFlowConfig":
         """The config of a saved run's ``model`` dict; a run saved before ``norm`` replaced the boolean
         ``batch_norm`` field (true = ``"batch"``, false = ``"none"``) reads as it trained."""
         fields = dict(fields)
-        if "batch_norm" in fields and "norm" not in fields:
-            fields["norm"] = "batch" if fields.pop("batch_norm") else "none"
+        batch_norm = fields.pop("batch_norm", None)
+        if batch_norm is not None and "norm" not in fields:
+            fields["norm"] = "batch" if batch_norm else "none"
         return cls(**fields)
 
     def at_inference(self) -> "HALFlowConfig":

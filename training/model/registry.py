@@ -14,8 +14,7 @@ with it the configs and ``--help``, loads without torch; it is imported when a n
 from __future__ import annotations
 
 import importlib
-import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -85,6 +84,16 @@ def model_name_of(run_config: dict[str, Any]) -> str:
     return run_config.get("model_name") or DEFAULT_NET
 
 
+def _unknown_fields(cls: type, model: dict[str, Any]) -> list[str]:
+    """The keys of a saved ``model`` dict that the config dataclass ``cls`` neither has as a field nor reads as an
+    older run's (its ``legacy_fields``), sorted; empty for a config class that is no dataclass (its constructor
+    then decides)."""
+    if not is_dataclass(cls):
+        return []
+    known = {f.name for f in fields(cls)} | set(getattr(cls, "legacy_fields", ()))
+    return sorted(str(k) for k in model if k not in known)
+
+
 def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowNetConfig, FlowNet]:
     """(name, config, net with the saved weights, on the CPU, in train mode) of a loaded ``monoflow-train``
     checkpoint (:func:`training.runtime.checkpoints.load_checkpoint`); every problem is one InputError
@@ -96,14 +105,17 @@ def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowN
         run = ckpt["config"]
         name = model_name_of(run)
         cls = config_class(name)
+        model = run["model"]
+        if not isinstance(model, dict):
+            raise TypeError(f"config.model is a {type(model).__name__}, not a mapping")
+        unknown = _unknown_fields(cls, model)
+        if unknown:  # fields a newer (or a scratch) version of the code wrote
+            raise InputError(path, f"checkpoint's model config has {'a field' if len(unknown) == 1 else 'fields'} this "
+                                   f"version of the {name} net does not know: {', '.join(map(repr, unknown))}")
         saved = getattr(cls, "from_saved", None)  # a config may read fields of older runs (HALFlowConfig)
-        config = saved(run["model"]) if saved is not None else cls(**run["model"])
+        config = saved(model) if saved is not None else cls(**model)
         state = ckpt["model"]
     except (KeyError, TypeError, AttributeError) as exc:
-        unknown = re.search(r"unexpected keyword argument '(\w+)'", str(exc)) if isinstance(exc, TypeError) else None
-        if unknown:  # a field a newer (or a scratch) version of the code wrote
-            raise InputError(path, f"checkpoint's model config has a field this version of the {name} net does not "
-                                   f"know: {unknown.group(1)!r}") from None
         raise InputError(path, f"checkpoint lacks the trainer's layout (config.model, model): {exc!r}") from None
     except ConfigError as exc:
         raise InputError(path, f"checkpoint's model config is invalid: {exc}") from None
