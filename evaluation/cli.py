@@ -161,6 +161,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "ego_sigma of its nearest in-view points' median departure, which it then takes "
                         "(model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a change "
                         "is named in the row")
+    r.add_argument("--level-departure", default="as-trained", choices=tuple(AS_TRAINED),
+                   help="each checkpoint's anchor keeps a finest-level point's departure from the camera's motion "
+                        "along the ground, its vertical part (camera y) dropped (model.eval_level_departure, "
+                        "inference only; needs the anchor): on, off (the whole departure), or as trained; a change is "
+                        "named in the row")
     r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
                    help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                         "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
@@ -295,7 +300,8 @@ def _run(args) -> int:
     dense = AS_TRAINED[args.evidence_dense]
     nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
                       vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density,
-                      own_departure=AS_TRAINED[args.own_departure], view_hold=AS_TRAINED[args.view_hold])
+                      own_departure=AS_TRAINED[args.own_departure], view_hold=AS_TRAINED[args.view_hold],
+                      level_departure=AS_TRAINED[args.level_departure])
             for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)

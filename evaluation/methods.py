@@ -90,13 +90,16 @@ class NetMethod:
     round), named (", own departures" / ", departures from the vote"). ``view_hold`` (true / false) overrides the
     inference-only ``model.eval_view_hold`` (a point whose rigid target leaves frame 2's view is held at the vote's
     motion unless it departs with its in-view neighbours; fortieth round), named (", view hold" / ", no view hold").
-    """
+    ``level_departure`` (true / false) overrides the inference-only ``model.eval_level_departure`` (a point's departure
+    kept along the ground, its vertical part dropped; forty-second round), named (", level departures" / ", whole
+    departures")."""
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
                  evidence_dense: bool | None = None, vote_gap: float | None = None,
                  vote_forward: bool | None = None, vote_density: float | None = None,
-                 own_departure: bool | None = None, view_hold: bool | None = None) -> None:
+                 own_departure: bool | None = None, view_hold: bool | None = None,
+                 level_departure: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -140,7 +143,9 @@ class NetMethod:
                 ("eval_own_departure", own_departure, bool, "anchor to measure departures from its own motion",
                  lambda v: ", own departures" if v else ", departures from the vote"),
                 ("eval_view_hold", view_hold, bool, "anchor to hold the points that leave the view",
-                 lambda v: ", view hold" if v else ", no view hold")):
+                 lambda v: ", view hold" if v else ", no view hold"),
+                ("eval_level_departure", level_departure, bool, "anchor to level its departures",
+                 lambda v: ", level departures" if v else ", whole departures")):
             if override(field, value, lacks, lambda c, f=field, v=value, k=kind: replace(c, **{f: k(v)})):
                 suffix += note(value)
         cfg = ckpt["config"]

@@ -180,7 +180,13 @@ class RigidPolishConfig:
         pc2 than step 2's motion did — the mean distance from each moved frame-1 point to its nearest pc2
         point, truncated at this many metres. Where frame 2 holds the points' counterparts that distance is
         near zero at the right motion for the points it kept, so it tells centimetres apart, which a re-scan's
-        sampling offsets hide (docs/learned-flow.md, thirty-fifth round). 0 = off (re-scans: the default)."""
+        sampling offsets hide (docs/learned-flow.md, thirty-fifth round). 0 = off (re-scans: the default).
+    level_starts: the start of each cluster's fit (steps 5, 6 and 6b) and step 6's median motion take the method's
+        median departure from the camera's motion along the ground only: its vertical part (camera y) is dropped.
+        Things on the ground move along it, and a re-scan's rings put a wrong vertical shift of one beam spacing
+        (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method whose movers carry a vertical error
+        starts the fit there and the fit settles a ring off (docs/learned-flow.md, forty-second round). false = the
+        method's whole median departure."""
 
     iterations: int = 20
     max_distance: float = 1.0

@@ -236,6 +236,48 @@ def test_eval_view_hold_needs_the_hold_at_the_vote_and_goes_with_the_anchor():
     assert _cfg(eval_anchor=True, eval_view_hold=True, **ANCHORED).without_anchor().eval_view_hold is True
 
 
+def test_eval_level_departure_needs_the_hold_at_the_vote_and_goes_with_the_anchor():
+    with pytest.raises(ConfigError, match="eval_level_departure"):
+        _cfg(eval_level_departure=True)
+    assert _cfg(eval_anchor=True, eval_level_departure=True).without_anchor().eval_level_departure is False
+    assert _cfg(eval_anchor=True, eval_level_departure=True, **ANCHORED).without_anchor().eval_level_departure is True
+
+
+def test_level_departure_drops_the_vertical_part_only():
+    from training.model.ego_motion import level_departure
+
+    d = torch.tensor([[[0.3, -0.2, 1.1], [0.0, 0.5, -0.4]]], requires_grad=True)
+    out = level_departure(d)
+    assert torch.equal(out, torch.tensor([[[0.3, 0.0, 1.1], [0.0, 0.0, -0.4]]]))
+    assert d[0, 0, 1].item() == pytest.approx(-0.2)  # a copy: the input keeps its vertical part
+    out.sum().backward()
+    assert torch.equal(d.grad, torch.tensor([[[1.0, 0.0, 1.0], [1.0, 0.0, 1.0]]]))
+
+
+def test_eval_level_departure_changes_inference_passes_only(monkeypatch):
+    """The switch's wiring: an inference pass hands the finest level's departures (the vote-aligned flow, one per L0
+    point) to :func:`~training.model.ego_motion.level_departure`, and the gate reads what it returns — with no
+    departure left, every point takes the vote's rigid flow; training steps, and the net without it, never call it."""
+    import training.model.halflownet as halflownet
+
+    calls: list[tuple] = []
+
+    def spy(departure):
+        calls.append(tuple(departure.shape))
+        return torch.zeros_like(departure)  # a mark the output must carry: no point departs
+
+    monkeypatch.setattr(halflownet, "level_departure", spy)
+    pc1, pc2 = _pair()
+    on, off = _anchored_twins(eval_level_departure=True)
+    with torch.no_grad():
+        out = on.eval()(pc1, pc2)
+    assert calls == [(1, on.config.level_points[0], 3)]
+    assert torch.allclose(out.flows[0], out.rigid_flows[0], atol=1e-5)
+    _flows(off.eval(), pc1, pc2)
+    _flows(on.train(), pc1, pc2)
+    assert len(calls) == 1
+
+
 def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
     """The switch's wiring: an inference pass hands the finest level's points (camera 1), flow, the vote's rigid flow
     and frame 2's whole input to :func:`~training.model.ego_motion.hold_out_of_view` and returns what it gives;

@@ -186,6 +186,13 @@ def own_departure(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations:
     return flow - (points @ split.R.transpose(1, 2) + split.t[:, None] - points)
 
 
+def level_departure(departure: Tensor) -> Tensor:
+    """``departure`` (B, N, 3, metres, camera axes: x right, y down, z forward) with its vertical part (y) set to
+    zero: a point's departure from the camera's motion kept along the ground, where things that move on their own
+    move (``HALFlowConfig.eval_level_departure``). A copy; differentiable in the other two parts."""
+    return departure * departure.new_tensor([1.0, 0.0, 1.0])
+
+
 def hold_out_of_view(points: Tensor, flow: Tensor, rigid: Tensor, frame2: Tensor, k: int = 0, agree: float = 0.1,
                      margin_deg: float = VIEW_MARGIN_DEG) -> tuple[Tensor, Tensor]:
     """Hold the points whose rigid target leaves frame 2's view: ``(flow', held)``.

@@ -31,7 +31,7 @@ from core.errors import InputError
 from training.model.coarse_match import SoftTranslation
 from training.model.contract import FlowOutput, Sampling
 from training.model.cost_volume import AttentiveCostVolume
-from training.model.ego_motion import hold_out_of_view, own_departure, rigid_plus_residual
+from training.model.ego_motion import hold_out_of_view, level_departure, own_departure, rigid_plus_residual
 from training.model.flow_head import FlowHead, FlowRefiner
 from training.model.halflownet_config import HALFlowConfig, check_eval_norm_stats
 from training.model.layers import SharedMLP, scaled
@@ -366,6 +366,8 @@ class HALFlowNet(nn.Module):
             # is the flow the hold reads (HALFlowConfig.eval_own_departure)
             flow = own_departure(p1.xyz[0].float(), flow.float(), cfg.ego_sigma, cfg.ego_iterations,
                                  cfg.ego_mad_factor, cfg.ego_planar).to(flow.dtype)
+        if cfg.eval_level_departure and cfg.held_at_vote and not self.training:
+            flow = level_departure(flow)  # the vote-aligned frame: the flow is the departure (eval_level_departure)
         flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, evidence2, hold)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
