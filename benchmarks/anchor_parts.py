@@ -51,6 +51,10 @@ PARTS: dict[str, dict[str, object]] = {
     "alldfkxgfdov": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
                      "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
                      "rigid_vote_density_m": 0.62, "eval_own_departure": True, "eval_view_hold": True},
+    "alldfkxgfdovl": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
+                      "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
+                      "rigid_vote_density_m": 0.62, "eval_own_departure": True, "eval_view_hold": True,
+                      "eval_level_departure": True},
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching
@@ -64,7 +68,9 @@ thirty-seventh round), ``alldfkxgfd`` that with its starts also refined with eac
 neighbourhood's density (``rigid_vote_density_m`` 0.62 m: the preset's since the thirty-eighth round),
 ``alldfkxgfdo`` that with the departures measured from the net's own camera motion (``eval_own_departure``: the
 preset's since the thirty-ninth round), ``alldfkxgfdov`` that with the points whose rigid target leaves frame 2's view
-held at the vote's motion unless they depart with their in-view neighbours (``eval_view_hold``: the preset's since the fortieth round), ``none`` the net without any of them."""
+held at the vote's motion unless they depart with their in-view neighbours (``eval_view_hold``: the preset's since the fortieth round),
+``alldfkxgfdovl`` that with each departure kept along the ground (``eval_level_departure``: the preset's since the
+forty-second round), ``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

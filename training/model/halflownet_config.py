@@ -184,10 +184,10 @@ class HALFlowConfig:
     eval_level_departure: with ``eval_anchor`` (or ``ego_l0_hold`` from ``"vote"``): at inference a finest-level
         point's departure from the camera's motion (from the net's own motion with ``eval_own_departure``, else
         from the vote's) keeps only its part along the ground: its vertical part (camera y, in the vote-aligned
-        frame) is dropped before the gate and the evidence test read it. Things on the ground move along it; the
-        net's movers carried a vertical error that grew with range and with training (0.15–0.19 m down at 32 m
-        after 2000 steps, 0.07–0.08 m after 500; one beam spacing of a 64-beam sensor is 0.24 m there; where the
-        training puts it was not traced). :func:`training.model.ego_motion.level_departure`. Inference only, no
+        frame) is dropped before the gate and the evidence test read it. Things on the ground move along it, and a
+        departure's vertical part is the net's error: on one of three runs its movers sank with training (mean
+        vertical error +0.04–0.05 m after 500 steps, +0.09–0.11 m after 2000, up to 0.19 m on cars 32 m ahead; where
+        the training puts it was not traced). :func:`training.model.ego_motion.level_departure`. Inference only, no
         gradient; a departure; false = the whole departure (forty-second round).
     """
 
