@@ -46,7 +46,7 @@ AS_TRAINED = {"as-trained": None, "on": True, "off": False}
 
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
               "score_in_view": "all points scored", "ego_check": "no ego check",
-              "object_whole_extent": "extent rule alone"}
+              "object_whole_extent": "extent rule alone", "level_starts": "whole departures"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 POLISH_HELP = {
@@ -70,6 +70,10 @@ POLISH_HELP = {
                            "inside frame 1's view, both its ends seen, is an object up to 12 m long (a van, a "
                            "lorry, a bus), one that reaches the view's edge up to 6 m; off = 6 m for every cluster, "
                            "the row named '<net> + rigid polish (extent rule alone)'",
+    "level_starts": "the rigid polish's object fits (RigidPolishConfig.level_starts) start from the method's "
+                    "departure from the camera's motion along the ground, its vertical part dropped (a re-scan's "
+                    "rings put a fit started a beam's spacing off on the wrong ring); off = the whole departure, "
+                    "the row named '<net> + rigid polish (whole departures)'",
 }
 """Each of those switches' ``--help`` text."""
 

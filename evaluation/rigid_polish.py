@@ -186,7 +186,7 @@ class RigidPolishConfig:
         Things on the ground move along it, and a re-scan's rings put a wrong vertical shift of one beam spacing
         (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method whose movers carry a vertical error
         starts the fit there and the fit settles a ring off (docs/learned-flow.md, forty-second round). false = the
-        method's whole median departure."""
+        method's whole median departure (before that round)."""
 
     iterations: int = 20
     max_distance: float = 1.0
@@ -217,7 +217,7 @@ class RigidPolishConfig:
     ego_check_points: int = 512
     ego_check_voxel: float = 1.0
     pairs_check: float = 0.0
-    level_starts: bool = False
+    level_starts: bool = True
 
     @classmethod
     def for_pairing(cls, pairing: str = "surface") -> "RigidPolishConfig":

@@ -363,6 +363,10 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     short = _stacked(net, ["rigid-polish"], ("object_whole_extent",))[1]
     assert short.config.object_whole_extent == 0.0 and rows[2].config.object_whole_extent == 12.0
     assert short.name == "zero + rigid polish (extent rule alone)"
+    # --level-starts off: the object fits start from the method's whole departure, named so
+    whole = _stacked(net, ["rigid-polish"], ("level_starts",))[1]
+    assert not whole.config.level_starts and rows[2].config.level_starts
+    assert whole.name == "zero + rigid polish (whole departures)"
 
 
 def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, tmp_path: Path) -> None:
