@@ -184,9 +184,9 @@ class RigidPolishConfig:
     level_starts: the start of each cluster's fit (steps 5, 6 and 6b) and step 6's median motion take the method's
         median departure from the camera's motion along the ground only: its vertical part (camera y) is dropped.
         Things on the ground move along it, and a re-scan's rings put a wrong vertical shift of one beam spacing
-        (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method whose movers carry a vertical error
-        starts the fit there and the fit settles a ring off (docs/learned-flow.md, forty-second round). false = the
-        method's whole median departure (before that round)."""
+        (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method
+        whose movers carry a vertical error starts the fit there and the fit settles a ring off (docs/learned-flow.md,
+        forty-second round). false = the method's whole median departure (before that round)."""
 
     iterations: int = 20
     max_distance: float = 1.0

@@ -344,9 +344,10 @@ class HALFlowConfig:
 
     def without_anchor(self) -> "HALFlowConfig":
         """This config with ``eval_anchor`` off and the inference options that act only through it dropped:
-        ``eval_gate_k``, ``eval_own_departure``, ``eval_view_hold``, ``eval_level_departure``, ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` / ``rigid_vote_gap_m`` /
-        ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and ``eval_evidence_dense``
-        where no evidence test is."""
+        ``eval_gate_k``; ``eval_own_departure``, ``eval_view_hold`` and ``eval_level_departure`` where the finest
+        level is not held at the vote's motion; ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` /
+        ``rigid_vote_gap_m`` / ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and
+        ``eval_evidence_dense`` where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_own_departure=self.eval_own_departure and self.held_at_vote,
