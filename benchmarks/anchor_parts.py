@@ -24,6 +24,25 @@ _L1 = {"ego_l0_hold": True, "ego_l0_hold_from": "l1"}
 _VOTE = {"ego_l0_hold": True, "ego_l0_hold_from": "vote"}
 _OFF = {"rigid_vote": False, "rigid_vote_dense": False, "rigid_vote_far": False, "ego_l0_hold": False,
         "ego_gate_evidence": False, "eval_evidence_dense": False, "rigid_vote_gap_m": 0.0}
+_PRESET_STEPS: tuple[tuple[str, dict[str, object]], ...] = (
+    ("d", {"rigid_vote_dense": True}), ("f", {"rigid_vote_far": True}), ("k", {"ego_gate_k": 16}),
+    ("x", {"eval_evidence_dense": True}), ("g", {"rigid_vote_gap_m": 0.3}), ("f", {"rigid_vote_forward": True}),
+    ("d", {"rigid_vote_density_m": 0.62}), ("o", {"eval_own_departure": True}), ("v", {"eval_view_hold": True}),
+    ("l", {"eval_level_departure": True}))
+"""The demo preset's anchor built up one switch at a time from ``all``: each step's letter extends the part's name."""
+
+
+def _preset_chain() -> dict[str, dict[str, object]]:
+    """``all`` (what ``eval_anchor`` turns on, the vote neither dense nor range-weighted) and each part that adds the
+    next of :data:`_PRESET_STEPS` to the one before: ``alld``, ``alldf``, … ``alldfkxgfdovl``."""
+    name, part = "all", {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False}
+    chain = {name: part}
+    for letter, switch in _PRESET_STEPS:
+        name, part = name + letter, {**part, **switch}
+        chain[name] = part
+    return chain
+
+
 PARTS: dict[str, dict[str, object]] = {
     "none": _OFF,
     "he": {**_OFF, **_L1, "ego_gate_evidence": True},
@@ -32,29 +51,7 @@ PARTS: dict[str, dict[str, object]] = {
     "rvh": {**_OFF, "rigid_vote": True, **_L1},
     "rvhe": {**_OFF, "rigid_vote": True, **_L1, "ego_gate_evidence": True},
     "rvhv": {**_OFF, "rigid_vote": True, **_VOTE},
-    "all": {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False},
-    "alld": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": False},
-    "alldf": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True},
-    "alldfk": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16},
-    "alldfkx": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                "eval_evidence_dense": True},
-    "alldfkxg": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                 "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3},
-    "alldfkxgf": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                  "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True},
-    "alldfkxgfd": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                   "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
-                   "rigid_vote_density_m": 0.62},
-    "alldfkxgfdo": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                    "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
-                    "rigid_vote_density_m": 0.62, "eval_own_departure": True},
-    "alldfkxgfdov": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                     "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
-                     "rigid_vote_density_m": 0.62, "eval_own_departure": True, "eval_view_hold": True},
-    "alldfkxgfdovl": {**ANCHOR_SWITCHES, "rigid_vote_dense": True, "rigid_vote_far": True, "ego_gate_k": 16,
-                      "eval_evidence_dense": True, "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True,
-                      "rigid_vote_density_m": 0.62, "eval_own_departure": True, "eval_view_hold": True,
-                      "eval_level_departure": True},
+    **_preset_chain(),
 }
 """Named subsets: ``rv`` the rigid vote, ``h`` the finest level held at L1's motion (``hv``: at the vote's),
 ``e`` the evidence gate; ``all`` is what ``eval_anchor`` turns on, ``alld`` that with the rigid vote matching

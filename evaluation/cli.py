@@ -44,6 +44,34 @@ def _number(flag: str, text: str, unit: str = "degrees") -> float:
 AS_TRAINED = {"as-trained": None, "on": True, "off": False}
 """An inference-only switch forced on or off for each checkpoint, or left as it trained (None: NetMethod's default)."""
 
+NET_SWITCHES = {
+    "eval_anchor": "each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
+                   "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
+                   "net can be scored both ways; a forced setting that differs is named in the row",
+    "vote_forward": "each checkpoint's rigid vote also starts its hypotheses along the camera's optical axis "
+                    "(model.rigid_vote_forward, inference only; needs the anchor or the rigid vote): on, off, "
+                    "or as trained, so a net trained before the option existed can use it; a change is named "
+                    "in the row",
+    "own_departure": "each checkpoint's anchor measures a point's departure from the net's own camera motion (its "
+                     "rigid fit of the finest level's flow) and adds it to the vote's motion "
+                     "(model.eval_own_departure, inference only; needs the anchor): on, off (departures from the "
+                     "vote's motion), or as trained; a change is named in the row",
+    "view_hold": "each checkpoint's anchor holds a finest-level point whose target under the vote's camera "
+                 "motion leaves frame 2's view at the vote's motion, unless its own departure lies within "
+                 "ego_sigma of its nearest in-view points' median departure, which it then takes "
+                 "(model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a change "
+                 "is named in the row",
+    "level_departure": "each checkpoint's anchor keeps a finest-level point's departure from the camera's motion "
+                       "along the ground, its vertical part (camera y) dropped (model.eval_level_departure, "
+                       "inference only; needs the anchor): on, off (the whole departure), or as trained; a change is "
+                       "named in the row",
+    "evidence_dense": "each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
+                      "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
+                      "change is named in the row",
+}
+"""The net's inference-only switches that ``run`` sets for every checkpoint: ``--<field>`` on, off or as-trained,
+passed as :class:`evaluation.methods.NetMethod`'s keyword of that name; each one's ``--help`` text."""
+
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
               "score_in_view": "all points scored", "ego_check": "no ego check",
               "object_whole_extent": "extent rule alone", "level_starts": "whole departures"}
@@ -130,10 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "rows are named '(point pairs)'. auto = 'points' for a format that stores frame 2 as frame "
                         "1's points (hplflownet) or a split whose stored flow carries frame 1's points onto frame 2's "
                         "points (evaluation.pairing), else 'surface'. --refine-pairing is its former name")
-    r.add_argument("--eval-anchor", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's inference anchor (model.eval_anchor: the rigid vote, the finest level "
-                        "held at the vote's camera motion, the evidence gate): as trained, or forced on / off, so a "
-                        "net can be scored both ways; a forced setting that differs is named in the row")
+    for field, text in NET_SWITCHES.items():  # on / off / as trained, each named after NetMethod's keyword
+        r.add_argument("--" + field.replace("_", "-"), default="as-trained", choices=tuple(AS_TRAINED), help=text)
     r.add_argument("--turn-scan", default="as-trained",
                    help="degrees: each checkpoint's turn scan before the rigid vote (model.rigid_vote_yaw_deg, "
                         "inference only; needs the anchor or the rigid vote): as trained, or a number (0 = off, 6 = "
@@ -144,36 +170,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "mean gap to frame 2, each gap truncated here (model.rigid_vote_gap_m, inference only; needs "
                         "the anchor or the rigid vote): as trained, or a number (0 = by the points each explains, "
                         "0.3 = the demo preset's); a change is named in the row")
-    r.add_argument("--vote-forward", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's rigid vote also starts its hypotheses along the camera's optical axis "
-                        "(model.rigid_vote_forward, inference only; needs the anchor or the rigid vote): on, off, "
-                        "or as trained, so a net trained before the option existed can use it; a change is named "
-                        "in the row")
     r.add_argument("--vote-density", default="as-trained",
                    help="metres: each checkpoint's rigid vote also refines its starts with every frame-1 point "
                         "weighed by one over the number of frame-1 points within this radius of it "
                         "(model.rigid_vote_density_m, inference only; needs the anchor or the rigid vote): as "
                         "trained, or a number (0 = off, 0.62 = the demo preset's); a change is named in the row")
-    r.add_argument("--own-departure", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's anchor measures a point's departure from the net's own camera motion (its "
-                        "rigid fit of the finest level's flow) and adds it to the vote's motion "
-                        "(model.eval_own_departure, inference only; needs the anchor): on, off (departures from the "
-                        "vote's motion), or as trained; a change is named in the row")
-    r.add_argument("--view-hold", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's anchor holds a finest-level point whose target under the vote's camera "
-                        "motion leaves frame 2's view at the vote's motion, unless its own departure lies within "
-                        "ego_sigma of its nearest in-view points' median departure, which it then takes "
-                        "(model.eval_view_hold, inference only; needs the anchor): on, off, or as trained; a change "
-                        "is named in the row")
-    r.add_argument("--level-departure", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's anchor keeps a finest-level point's departure from the camera's motion "
-                        "along the ground, its vertical part (camera y) dropped (model.eval_level_departure, "
-                        "inference only; needs the anchor): on, off (the whole departure), or as trained; a change is "
-                        "named in the row")
-    r.add_argument("--evidence-dense", default="as-trained", choices=tuple(AS_TRAINED),
-                   help="each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
-                        "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
-                        "change is named in the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -297,15 +298,11 @@ def _run(args) -> int:
         split = dataclasses.replace(split, entries=[e for e in split.entries if e.name in keep])
     scenes = split
     first = scenes[0]
-    anchor = AS_TRAINED[args.eval_anchor]
+    switches = {field: AS_TRAINED[getattr(args, field)] for field in NET_SWITCHES}
     turn_scan = None if args.turn_scan == "as-trained" else _number("--turn-scan", args.turn_scan)
     vote_gap = None if args.vote_gap == "as-trained" else _number("--vote-gap", args.vote_gap, "metres")
     density = None if args.vote_density == "as-trained" else _number("--vote-density", args.vote_density, "metres")
-    dense = AS_TRAINED[args.evidence_dense]
-    nets = [NetMethod(c, device=args.device, eval_anchor=anchor, turn_scan=turn_scan, evidence_dense=dense,
-                      vote_gap=vote_gap, vote_forward=AS_TRAINED[args.vote_forward], vote_density=density,
-                      own_departure=AS_TRAINED[args.own_departure], view_hold=AS_TRAINED[args.view_hold],
-                      level_departure=AS_TRAINED[args.level_departure])
+    nets = [NetMethod(c, device=args.device, turn_scan=turn_scan, vote_gap=vote_gap, vote_density=density, **switches)
             for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)
