@@ -28,13 +28,13 @@ _PRESET_STEPS: tuple[tuple[str, dict[str, object]], ...] = (
     ("d", {"rigid_vote_dense": True}), ("f", {"rigid_vote_far": True}), ("k", {"ego_gate_k": 16}),
     ("x", {"eval_evidence_dense": True}), ("g", {"rigid_vote_gap_m": 0.3}), ("f", {"rigid_vote_forward": True}),
     ("d", {"rigid_vote_density_m": 0.62}), ("o", {"eval_own_departure": True}), ("v", {"eval_view_hold": True}),
-    ("l", {"eval_level_departure": True}))
+    ("l", {"eval_level_departure": True}), ("s", {"eval_evidence_surface": 1.5}))
 """The demo preset's anchor built up one switch at a time from ``all``: each step's letter extends the part's name."""
 
 
 def _preset_chain() -> dict[str, dict[str, object]]:
     """``all`` (what ``eval_anchor`` turns on, the vote neither dense nor range-weighted) and each part that adds the
-    next of :data:`_PRESET_STEPS` to the one before: ``alld``, ``alldf``, … ``alldfkxgfdovl``."""
+    next of :data:`_PRESET_STEPS` to the one before: ``alld``, ``alldf``, … ``alldfkxgfdovls``."""
     name, part = "all", {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False}
     chain = {name: part}
     for letter, switch in _PRESET_STEPS:
@@ -67,7 +67,9 @@ neighbourhood's density (``rigid_vote_density_m`` 0.62 m: the preset's since the
 preset's since the thirty-ninth round), ``alldfkxgfdov`` that with the points whose rigid target leaves frame 2's view
 held at the vote's motion unless they depart with their in-view neighbours (``eval_view_hold``: the preset's since the fortieth round),
 ``alldfkxgfdovl`` that with each departure kept along the ground (``eval_level_departure``: the preset's since the
-forty-second round), ``none`` the net without any of them."""
+forty-second round), ``alldfkxgfdovls`` that with a departure taken only where the camera's motion leaves the point's
+neighbourhood off frame 2's sampled surface (``eval_evidence_surface`` 1.5: the preset's since the forty-third round),
+``none`` the net without any of them."""
 
 
 def with_parts(method, part: str):

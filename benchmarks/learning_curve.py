@@ -65,7 +65,8 @@ def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scal
              "model.rigid_vote_dense": False, "model.rigid_vote_far": False, "model.eval_gate_k": 0,
              "model.rigid_vote_yaw_deg": 0.0, "model.eval_evidence_dense": False, "model.rigid_vote_gap_m": 0.0,
              "model.rigid_vote_forward": False, "model.rigid_vote_density_m": 0.0, "model.eval_own_departure": False,
-             "model.eval_view_hold": False, "model.eval_level_departure": False}
+             "model.eval_view_hold": False, "model.eval_level_departure": False,
+             "model.eval_evidence_surface": 0.0}
     return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
 
 

@@ -175,6 +175,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "weighed by one over the number of frame-1 points within this radius of it "
                         "(model.rigid_vote_density_m, inference only; needs the anchor or the rigid vote): as "
                         "trained, or a number (0 = off, 0.62 = the demo preset's); a change is named in the row")
+    r.add_argument("--evidence-surface", default="as-trained",
+                   help="spacings: each checkpoint's evidence test also takes a finest-level departure only where at "
+                        "least a quarter of the point's neighbourhood has rigid targets farther than this many of frame "
+                        "2's local spacings from frame 2 (model.eval_evidence_surface, inference only; needs the "
+                        "anchor): as trained, or a number (0 = off, 1.5 = the demo preset's); a change is named in "
+                        "the row")
     r.add_argument("--seeds", default="0", help="comma list of sampling seeds (mean ± std over them)")
     r.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0 = all)")
     r.add_argument("--device", default="auto", help="auto | cpu | cuda[:i] (auto = the GPU when there is one)")
@@ -302,7 +308,10 @@ def _run(args) -> int:
     turn_scan = None if args.turn_scan == "as-trained" else _number("--turn-scan", args.turn_scan)
     vote_gap = None if args.vote_gap == "as-trained" else _number("--vote-gap", args.vote_gap, "metres")
     density = None if args.vote_density == "as-trained" else _number("--vote-density", args.vote_density, "metres")
-    nets = [NetMethod(c, device=args.device, turn_scan=turn_scan, vote_gap=vote_gap, vote_density=density, **switches)
+    surface = (None if args.evidence_surface == "as-trained"
+               else _number("--evidence-surface", args.evidence_surface, "spacings"))
+    nets = [NetMethod(c, device=args.device, turn_scan=turn_scan, vote_gap=vote_gap, vote_density=density,
+                      evidence_surface=surface, **switches)
             for c in args.checkpoint]
     for n in nets:
         check_not_trained_on(n.checkpoint, n.run_config, args.split, split.names)

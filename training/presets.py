@@ -35,7 +35,9 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
     finest level's departures measured from the net's own camera motion (``model.eval_own_departure``, thirty-ninth
     round) and a point whose target under the vote's motion leaves frame 2's view held at it unless it departs
     with its in-view neighbours (``model.eval_view_hold``, fortieth round), each departure kept along the ground
-    (``model.eval_level_departure``, forty-second round);
+    (``model.eval_level_departure``, forty-second round) and taken only where the camera's motion leaves the
+    point's neighbourhood off frame 2's sampled surface (``model.eval_evidence_surface`` 1.5 spacings, forty-third
+    round);
     ``overrides`` are dotted
     ``{"model.ego_head": False}`` pairs."""
     from core.options import config_from_dict
@@ -55,6 +57,7 @@ def demo_train_config(cache: str, run_dir: str, steps: int = 500, n_points: int 
                   "eval_anchor": True, "rigid_vote_dense": True, "rigid_vote_far": True,
                   "eval_gate_k": 16, "rigid_vote_yaw_deg": 6.0, "eval_evidence_dense": True,
                   "rigid_vote_gap_m": 0.3, "rigid_vote_forward": True, "rigid_vote_density_m": 0.62,
-                  "eval_own_departure": True, "eval_view_hold": True, "eval_level_departure": True},
+                  "eval_own_departure": True, "eval_view_hold": True, "eval_level_departure": True,
+                  "eval_evidence_surface": 1.5},
     }
     return config_from_dict(TrainConfig, base, overrides, source="demo preset")

@@ -60,26 +60,29 @@ def test_the_table_has_a_row_per_net_and_part(tmp_path, capsys):
         assert np.isfinite(epe) and epe >= 0
 
 
-@pytest.mark.parametrize("dense, gap, forward, density, own, view, level, anchor", [
-    (False, 0.0, False, 0.0, False, False, False, "alldfk"), (True, 0.0, False, 0.0, False, False, False, "alldfkx"),
-    (True, 0.3, False, 0.0, False, False, False, "alldfkxg"), (True, 0.3, True, 0.0, False, False, False, "alldfkxgf"),
-    (True, 0.3, True, 0.62, False, False, False, "alldfkxgfd"),
-    (True, 0.3, True, 0.62, True, False, False, "alldfkxgfdo"),
-    (True, 0.3, True, 0.62, True, True, False, "alldfkxgfdov"),
-    (True, 0.3, True, 0.62, True, True, True, "alldfkxgfdovl")])
-def test_the_presets_anchor_is_alldfkxgfdovl_and_its_net_takes_every_part(tmp_path, dense, gap, forward, density, own,
-                                                                          view, level, anchor):
+@pytest.mark.parametrize("dense, gap, forward, density, own, view, level, surface, anchor", [
+    (False, 0.0, False, 0.0, False, False, False, 0.0, "alldfk"),
+    (True, 0.0, False, 0.0, False, False, False, 0.0, "alldfkx"),
+    (True, 0.3, False, 0.0, False, False, False, 0.0, "alldfkxg"),
+    (True, 0.3, True, 0.0, False, False, False, 0.0, "alldfkxgf"),
+    (True, 0.3, True, 0.62, False, False, False, 0.0, "alldfkxgfd"),
+    (True, 0.3, True, 0.62, True, False, False, 0.0, "alldfkxgfdo"),
+    (True, 0.3, True, 0.62, True, True, False, 0.0, "alldfkxgfdov"),
+    (True, 0.3, True, 0.62, True, True, True, 0.0, "alldfkxgfdovl"),
+    (True, 0.3, True, 0.62, True, True, True, 1.5, "alldfkxgfdovls")])
+def test_the_presets_anchor_is_alldfkxgfdovls_and_its_net_takes_every_part(tmp_path, dense, gap, forward, density,
+                                                                           own, view, level, surface, anchor):
     """A net saved with the preset's anchor (dense, range-weighted vote chosen by its gap with forward starts and
     rounds weighed by density, the gate over 16 neighbours, the evidence read against frame 2's whole input, the
     departures measured from the net's own motion, the points leaving the view given their in-view neighbours'
-    departure, the departures kept along the ground; without the evidence and what follows it, the twenty-second
-    round's): every part applies to it (its own inference options are dropped first), and ``alldfkxgfdovl``
-    (``alldfkxgfdov``, ``alldfkxgfdo``, ``alldfkxgfd``, ``alldfkxgf``, ``alldfkxg``, ``alldfkx``, ``alldfk``) is its
+    departure, the departures kept along the ground, a departure taken only off frame 2's surface; without the
+    evidence and what follows it, the twenty-second round's): every part applies to it (its own inference options are
+    dropped first), and ``alldfkxgfdovls`` (``alldfkxgfdovl``, ``alldfkxgfdov``, ``alldfkxgfdo``, ``alldfkxgfd``, ``alldfkxgf``, ``alldfkxg``, ``alldfkx``, ``alldfk``) is its
     anchor."""
     preset = dict(ANCHORABLE, eval_anchor=True, rigid_vote_dense=True, rigid_vote_far=True, eval_gate_k=16,
                   eval_evidence_dense=dense, rigid_vote_gap_m=gap, rigid_vote_forward=forward,
                   rigid_vote_density_m=density, eval_own_departure=own, eval_view_hold=view,
-                  eval_level_departure=level)
+                  eval_level_departure=level, eval_evidence_surface=surface)
     path = tiny_flow_checkpoint(tmp_path / "run" / "net.pt", **preset)
     pc1 = structured_scene(np.random.default_rng(0), 300).astype(np.float32)
     pc2 = (pc1 + [0.1, 0.0, 1.0]).astype(np.float32)

@@ -392,16 +392,19 @@ def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, 
     ("vote_density", "rigid_vote_density_m", 0.62, 0.0, "density rounds 0.62 m", ("--vote-density", "0.62"), -1.0),
     ("own_departure", "eval_own_departure", True, False, "own departures", ("--own-departure", "on"), None),
     ("view_hold", "eval_view_hold", True, False, "view hold", ("--view-hold", "on"), None),
-    ("level_departure", "eval_level_departure", True, False, "level departures", ("--level-departure", "on"), None)])
+    ("level_departure", "eval_level_departure", True, False, "level departures", ("--level-departure", "on"), None),
+    ("evidence_surface", "eval_evidence_surface", 1.5, 0.0, "off-surface evidence 1.5", ("--evidence-surface", "1.5"),
+     -1.0)])
 def test_an_inference_option_of_the_rigid_vote_can_be_set_for_a_trained_net_and_names_the_row(
         world: Path, tmp_path: Path, kwarg, field, on, off, suffix, flag, negative) -> None:
     """``--vote-gap`` / ``--vote-forward`` / ``--vote-density`` / ``--own-departure`` / ``--view-hold`` /
-    ``--level-departure`` and ``NetMethod(vote_gap | vote_forward | vote_density | own_departure | view_hold |
-    level_departure=…)``: an anchored net trained before the option existed scored with the rigid vote choosing by its
-    gap, starting along the optical axis or weighing its rounds by density, with the anchor's departures measured from
-    the net's own motion, with the points leaving the view given their neighbours' departure, or with departures kept
-    along the ground (named, for inference only); the option's off value leaves
-    it as trained; a net without a rigid vote (or anchor), or a radius below zero: one error naming the option."""
+    ``--level-departure`` / ``--evidence-surface`` and ``NetMethod(vote_gap | vote_forward | vote_density |
+    own_departure | view_hold | level_departure | evidence_surface=…)``: an anchored net trained before the option
+    existed scored with the rigid vote choosing by its gap, starting along the optical axis or weighing its rounds by
+    density, with the anchor's departures measured from the net's own motion, with the points leaving the view given
+    their neighbours' departure, with departures kept along the ground, or taken only off frame 2's surface (named, for
+    inference only); the option's off value leaves it as trained; a net without a rigid vote (or anchor), or a radius
+    or κ below zero: one error naming the option."""
     from core.errors import ConfigError
 
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt", **ANCHORED)

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from core.geometry import pose_vec_to_mat
-from training.model.ego_motion import hold_out_of_view, own_departure, rigid_plus_residual, weighted_rigid_fit
+from training.model.ego_motion import (hold_out_of_view, off_surface, own_departure, rigid_plus_residual,
+                                      weighted_rigid_fit)
 
 
 def _scene(seed: int = 0, n: int = 600, movers: int = 60, noise: float = 0.1):
@@ -252,6 +253,62 @@ def test_evidence_gate_keeps_departures_frame_two_supports_and_shuts_the_rest():
         assert torch.allclose(out[:, :40], flow[:, :40], atol=0.05)  # the car keeps its own flow
         stray_err = (out[:, strays] - rigid[:, strays]).norm(dim=-1)
         assert (stray_err > 0.5).all() if strays_kept else (stray_err < 0.01).all(), stray_err.max()
+
+
+def _wall_and_car() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A wall 20 m ahead whose frame-2 points lie on a 0.5 m grid, frame 1's on the same wall between them (their
+    rigid targets at the grid cells' centres, 0.35 m = 0.71 spacings from the nearest sample: the worst a right rigid
+    target gets), and a car's rear 12 m ahead, on a 0.25 m grid, that drives 2 m on. The camera turns 1° and moves
+    0.9 m forward. Returns frame-1 points (camera 1), frame 2 (camera 2), the rigid flow, the true flow, the car's
+    mask and the camera's motion (R (1, 3, 3), t (1, 3)); metres, float64."""
+    T = torch.tensor(pose_vec_to_mat(np.array([0.02, 0.0, 0.9, 0.0, np.radians(1.0), 0.0])))
+    xs, ys = torch.arange(-10.0, 10.01, 0.5, dtype=torch.float64), torch.arange(-2.0, 1.51, 0.5, dtype=torch.float64)
+    grid = torch.stack(torch.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+    wall2 = torch.cat([grid, torch.full((len(grid), 1), 20.0, dtype=torch.float64)], 1)
+    inv = torch.linalg.inv(T)
+    wall1 = (wall2 + torch.tensor([0.25, 0.25, 0.0], dtype=torch.float64)) @ inv[:3, :3].T + inv[:3, 3]
+    cx, cy = torch.arange(2.0, 4.01, 0.25, dtype=torch.float64), torch.arange(-0.5, 1.01, 0.25, dtype=torch.float64)
+    face = torch.stack(torch.meshgrid(cx, cy, indexing="ij"), -1).reshape(-1, 2)
+    car1 = torch.cat([face, torch.full((len(face), 1), 12.0, dtype=torch.float64)], 1)
+    p = torch.cat([wall1, car1])[None]
+    rigid = p @ T[:3, :3].T + T[:3, 3] - p
+    car = torch.zeros(p.shape[1], dtype=torch.bool)
+    car[len(wall1):] = True
+    truth = rigid.clone()
+    truth[0, car] += torch.tensor([0.0, 0.0, 2.0], dtype=torch.float64)
+    frame2 = torch.cat([wall2[None], (p + truth)[:, car]], 1)
+    return p, frame2, rigid, truth, car, (T[None, :3, :3], T[None, :3, 3])
+
+
+def test_off_surface_tells_a_mover_s_rigid_targets_from_a_sampled_surface_s():
+    """Rigid targets on the wall, however they fall between its samples (0.71 spacings at most here), lie on frame
+    2's surface; the car's, 2 m in front of its frame-2 points (8 of its 0.25 m spacings), lie off it — point by point
+    and by the quarter rule over 16 neighbours."""
+    p, frame2, rigid, _, car, _ = _wall_and_car()
+    for k in (0, 16):
+        off = off_surface(p, p + rigid, frame2, 1.5, k)[0]
+        assert off[car].all() and not off[~car].any()
+    gap_on_wall = off_surface(p, p + rigid, frame2, 0.70, 0)[0]  # the wall's targets sit at 0.71 spacings
+    assert gap_on_wall[~car].all()
+
+
+def test_surface_evidence_shuts_a_departure_that_snaps_onto_frame_two_s_own_surface():
+    """A patch of the wall whose flow snaps onto the nearest frame-2 sample (a coherent 0.35 m departure along the
+    wall, as a Chamfer match gives) lands nearer to frame 2 than its rigid target: the evidence test alone takes it.
+    With ``surface`` 1.5 the camera's motion leaves that patch on frame 2's surface, so it is held at the rigid
+    flow; the car, whose rigid targets lie off the surface, keeps its own flow either way. Held at the camera's
+    motion, as the anchor holds the finest level at the vote's."""
+    p, frame2, rigid, truth, car, motion = _wall_and_car()
+    flow = truth.clone()
+    patch = (p[0, :, 0] < -6.0) & ~car
+    flow[0, patch] -= torch.tensor([0.25, 0.25, 0.0], dtype=torch.float64)  # onto the grid's samples
+    for surface, patch_kept in ((0.0, True), (1.5, False)):
+        out, *_ = rigid_plus_residual(p, flow, sigma=0.1, iterations=4, mad_factor=3.0, gate_k=16, frame2=frame2,
+                                      motion=motion, evidence=True, surface=surface)
+        assert torch.allclose(out[0, car], truth[0, car], atol=0.05)  # the car keeps its own flow
+        patch_dep = (out[0, patch] - rigid[0, patch]).norm(dim=-1)
+        inner = p[0, patch, 0] < -7.0  # the patch's points away from its edge, whose neighbourhoods lie inside it
+        assert (patch_dep[inner] > 0.3).all() if patch_kept else (patch_dep < 1e-6).all(), patch_dep.max()
 
 
 def test_a_negative_gate_neighbourhood_or_spacing_is_refused():

@@ -307,3 +307,38 @@ def test_eval_view_hold_changes_inference_passes_only(monkeypatch):
     with torch.no_grad():
         every = on.eval()(pc1, pc2)
     assert torch.equal(every.gates[0], torch.zeros_like(every.gates[0]))  # every point held: no gate left open
+
+
+def test_eval_evidence_surface_needs_the_evidence_test_and_goes_with_it():
+    with pytest.raises(ConfigError, match="eval_evidence_surface"):
+        _cfg(eval_evidence_surface=1.5)
+    with pytest.raises(ConfigError, match="eval_evidence_surface"):
+        _cfg(eval_anchor=True, eval_evidence_surface=-1.0)
+    assert _cfg(eval_anchor=True, eval_evidence_surface=1.5).without_anchor().eval_evidence_surface == 0.0
+    assert _cfg(eval_anchor=True, eval_evidence_surface=1.5, **ANCHORED).without_anchor().eval_evidence_surface == 1.5
+
+
+def test_eval_evidence_surface_changes_the_finest_level_of_inference_passes_only(monkeypatch):
+    """The switch's wiring: an inference pass hands the finest level's points, their rigid targets, frame 2's whole
+    input (with ``eval_evidence_dense``) and the anchor's gate neighbourhood to
+    :func:`~training.model.ego_motion.off_surface` once (where it finds every neighbourhood off the surface, the pass
+    is the net's without the switch; what the gate does with its answer is pinned in tests/training/test_ego_motion.py);
+    coarser levels, training steps and the net without it never call it."""
+    import training.model.ego_motion as ego_motion
+
+    calls: list[tuple] = []
+
+    def spy(points, targets, frame2, kappa, k=0):
+        calls.append((points.shape[1], frame2.shape[1], kappa, k))
+        return torch.ones(points.shape[:2], dtype=torch.bool, device=points.device)  # everything off the surface
+
+    monkeypatch.setattr(ego_motion, "off_surface", spy)
+    pc1, pc2 = _pair()
+    on, off = _anchored_twins(eval_evidence_surface=1.5, eval_evidence_dense=True, eval_gate_k=16)
+    off.config = dataclasses.replace(off.config, eval_evidence_dense=True, eval_gate_k=16)
+    with torch.no_grad():
+        out = on.eval()(pc1, pc2)
+    assert calls == [(on.config.level_points[0], pc2.shape[1], 1.5, 16)]
+    assert torch.equal(out.flows[0], _flows(off.eval(), pc1, pc2)[0])
+    _flows(on.train(), pc1, pc2)
+    assert len(calls) == 1

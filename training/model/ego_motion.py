@@ -107,7 +107,8 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
                         gate_spacing: float = 0.0, open_k: int = 0,
-                        motion: tuple[Tensor, Tensor] | None = None, evidence: bool = False) -> EgoSplit:
+                        motion: tuple[Tensor, Tensor] | None = None, evidence: bool = False,
+                        surface: float = 0.0) -> EgoSplit:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual
     (an :class:`EgoSplit`). ``sigma`` (metres) is the residual
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
@@ -134,7 +135,9 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     this rigid motion instead of fitting one (no fit, no re-weighting; the scale and the gate as above, from
     the residuals against it) — a motion fitted elsewhere, e.g. at a coarser level. ``evidence`` with
     ``frame2``: the gate is shut wherever the point's own target ``p + f`` is no nearer to a frame-2 point
-    than its rigid target ``T̂ p`` (a departure frame 2 does not support).
+    than its rigid target ``T̂ p`` (a departure frame 2 does not support). ``surface`` κ > 0 with ``evidence``: the
+    gate is also shut where fewer than a quarter of the point's neighbourhood (``gate_k`` nearest points, else the
+    point alone) have rigid targets off frame 2's surface (:func:`off_surface`).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -164,6 +167,8 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
         if evidence and frame2 is not None:
             d_own, _ = knn(target, frame2, 1)
             gate = gate * (d_own < d_rigid).to(gate.dtype)
+            if surface > 0:
+                gate = gate * off_surface(points, moved, frame2, surface, gate_k)[..., None].to(gate.dtype)
     out = rigid + gate * (flow - rigid)
     if open_gradient:
         through = flow
@@ -172,6 +177,31 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             through = group(flow, near).mean(dim=2)
         out = out + (1 - gate) * (through - through.detach())
     return EgoSplit(out, R, t, weights, gate[..., 0])
+
+
+def off_surface(points: Tensor, targets: Tensor, frame2: Tensor, kappa: float, k: int = 0) -> Tensor:
+    """Whether the camera's motion leaves a point's neighbourhood off frame 2's surface: (B, N) bool.
+
+    ``points`` (B, N, 3) and their rigid targets ``targets`` (B, N, 3, ``T̂ p``), ``frame2`` (B, M, 3, M ≥ 2), all
+    metres in one frame. A rigid target's gap is its distance to the nearest frame-2 point q, measured in units of
+    frame 2's local spacing there (q's distance to its own nearest other frame-2 point). Sampled at that spacing,
+    a surface holds no point farther than about one spacing from a sample, so a static point whose target under the
+    right camera motion lies on it has a gap of at most about 1; a mover's target, where the mover no longer is, lies
+    off it. True where the 75th percentile of the gaps over the point's ``k`` nearest points (itself included; the
+    point alone for ``k`` ≤ 1) exceeds ``kappa``: at least a quarter of its neighbourhood lies off the surface, as
+    an object's leading or trailing face does while its sides slide along their own surface. No gradient
+    (``HALFlowConfig.eval_evidence_surface``, forty-third round)."""
+    if frame2.shape[1] < 2:  # no spacing to measure: no test
+        return torch.ones(points.shape[:2], dtype=torch.bool, device=points.device)
+    with torch.no_grad():
+        d2, near = knn(targets, frame2, 1)
+        s2, _ = knn(frame2, frame2, 2)
+        spacing2 = s2[..., 1].gather(1, near[..., 0])
+        gap = (d2[..., 0] / spacing2.clamp_min(1e-12)).sqrt()
+        if k > 1:
+            _, idx = knn(points, points, min(k, points.shape[1]))
+            gap = torch.quantile(group(gap[..., None], idx)[..., 0], 0.75, dim=-1)
+        return gap > kappa
 
 
 def own_departure(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4, mad_factor: float = 0.0,

@@ -189,6 +189,16 @@ class HALFlowConfig:
         vertical error +0.04–0.05 m after 500 steps, +0.09–0.11 m after 2000, up to 0.19 m on cars 32 m ahead; where
         the training puts it was not traced). :func:`training.model.ego_motion.level_departure`. Inference only, no
         gradient; a departure; false = the whole departure (forty-second round).
+    eval_evidence_surface: κ ≥ 0; > 0 with the evidence test (``ego_gate_evidence``, which ``eval_anchor`` turns
+        on): at inference the finest level's departure is also taken only where the camera's motion leaves the
+        point's neighbourhood off frame 2's surface — at least a quarter of its ``eval_gate_k`` (else
+        ``ego_gate_k``) nearest points have rigid targets farther than κ × frame 2's local spacing from frame 2's
+        nearest point (:func:`training.model.ego_motion.off_surface`). A surface sampled at some spacing holds no
+        point farther than about one spacing from a sample, so a static point's right rigid target has a gap of
+        at most about 1, and a flow snapped to a nearer sample (which the evidence test alone accepts on dense
+        or coarsely sampled clouds) is not taken; a mover's leading and trailing faces lie off it. Reads the
+        evidence test's frame 2 (its whole input with ``eval_evidence_dense``). Inference only, no gradient; a
+        departure; 0 = the evidence test alone (forty-third round).
     """
 
     n_points: int = 8192
@@ -237,6 +247,7 @@ class HALFlowConfig:
     eval_own_departure: bool = False
     eval_view_hold: bool = False
     eval_level_departure: bool = False
+    eval_evidence_surface: float = 0.0
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -294,6 +305,11 @@ class HALFlowConfig:
         if self.eval_level_departure and not (self.eval_anchor or self.held_at_vote):
             raise ConfigError("model.eval_level_departure levels the anchor's departures: it needs model.eval_anchor "
                               "(or the finest level held at the vote's motion)")
+        if not self.eval_evidence_surface >= 0:
+            raise ConfigError(f"model.eval_evidence_surface must be >= 0, got {self.eval_evidence_surface}")
+        if self.eval_evidence_surface and not (self.eval_anchor or self.ego_gate_evidence):
+            raise ConfigError("model.eval_evidence_surface extends the evidence test: it needs model.eval_anchor or "
+                              "model.ego_gate_evidence")
         if self.eval_evidence_dense and not (self.eval_anchor or self.ego_gate_evidence):
             raise ConfigError("model.eval_evidence_dense changes the evidence test: it needs model.eval_anchor or "
                               "model.ego_gate_evidence")
@@ -347,13 +363,14 @@ class HALFlowConfig:
         ``eval_gate_k``; ``eval_own_departure``, ``eval_view_hold`` and ``eval_level_departure`` where the finest
         level is not held at the vote's motion; ``rigid_vote_dense`` / ``rigid_vote_far`` / ``rigid_vote_yaw_deg`` /
         ``rigid_vote_gap_m`` / ``rigid_vote_forward`` / ``rigid_vote_density_m`` where no rigid vote is left and
-        ``eval_evidence_dense`` where no evidence test is."""
+        ``eval_evidence_dense`` / ``eval_evidence_surface`` where no evidence test is."""
         keep_vote = self.rigid_vote
         return replace(self, eval_anchor=False, eval_gate_k=0,
                        eval_own_departure=self.eval_own_departure and self.held_at_vote,
                        eval_view_hold=self.eval_view_hold and self.held_at_vote,
                        eval_level_departure=self.eval_level_departure and self.held_at_vote,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
+                       eval_evidence_surface=self.eval_evidence_surface if self.ego_gate_evidence else 0.0,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
                        rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0,
