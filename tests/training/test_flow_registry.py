@@ -222,6 +222,23 @@ def test_a_model_config_field_this_code_does_not_know_is_named(tmp_path: Path) -
         restore_flow_net(ckpt, tmp_path / "future.pt")
 
 
+def test_a_model_config_that_is_no_mapping_is_named_as_such(tmp_path: Path) -> None:
+    """A checkpoint whose ``config.model`` is a list (a scratch edit, another tool's file): one InputError naming the
+    file and what the entry is, not the generic "lacks the trainer's layout" that a missing key gets."""
+    from testkit.flow_checkpoint import tiny_flow_checkpoint
+    from training.model.registry import restore_flow_net
+    from training.runtime.checkpoints import load_checkpoint
+
+    ckpt = load_checkpoint(tiny_flow_checkpoint(tmp_path / "net.pt"), kind="flow")
+    ckpt["config"]["model"] = [2048, 512]
+    with pytest.raises(InputError, match=r"odd.pt: checkpoint's config.model is a list, not a mapping of the "
+                                         r"halflownet net's fields"):
+        restore_flow_net(ckpt, tmp_path / "odd.pt")
+    del ckpt["config"]["model"]
+    with pytest.raises(InputError, match=r"odd.pt: checkpoint lacks the trainer's layout"):
+        restore_flow_net(ckpt, tmp_path / "odd.pt")
+
+
 def test_an_older_run_s_field_is_read_not_refused(tmp_path: Path) -> None:
     """``batch_norm`` (before ``norm`` replaced it) is no field of the config any more, yet a checkpoint holding it
     is an older run's, not a newer one's: it restores, as it trained."""

@@ -107,7 +107,8 @@ def restore_flow_net(ckpt: dict[str, Any], path: str | Path) -> tuple[str, FlowN
         cls = config_class(name)
         model = run["model"]
         if not isinstance(model, dict):
-            raise TypeError(f"config.model is a {type(model).__name__}, not a mapping")
+            raise InputError(path, f"checkpoint's config.model is a {type(model).__name__}, not a mapping of the "
+                                   f"{name} net's fields")
         unknown = _unknown_fields(cls, model)
         if unknown:  # fields a newer (or a scratch) version of the code wrote
             raise InputError(path, f"checkpoint's model config has {'a field' if len(unknown) == 1 else 'fields'} this "
