@@ -145,8 +145,8 @@ class HALFlowNet(nn.Module):
     # ------------------------------------------------------------------ helpers
 
     def _ego(self, cfg: HALFlowConfig, xyz: Tensor, flow: Tensor, frame2: Tensor,
-             motion: tuple[Tensor, Tensor] | None = None, surface: float = 0.0) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None,
-                                                                 tuple[Tensor, Tensor] | None]:
+             motion: tuple[Tensor, Tensor] | None = None, surface: float = 0.0
+             ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None, tuple[Tensor, Tensor] | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
         motion's flow ``T̂ p − p``, the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
         and the output, differentiable in the former (:mod:`training.losses.gate_pull`), and the gate
