@@ -65,6 +65,10 @@ NET_SWITCHES = {
                        "along the ground, its vertical part (camera y) dropped (model.eval_level_departure, "
                        "inference only; needs the anchor): on, off (the whole departure), or as trained; a change is "
                        "named in the row",
+    "neighbourhood_scale": "each checkpoint's anchor compares a finest-level point's 16-neighbour median departure with "
+                           "three robust deviations of those medians rather than of the points' own departures "
+                           "(model.eval_neighbourhood_scale, inference only; needs the anchor and its gate over k > 1 "
+                           "neighbours): on, off, or as trained; a change is named in the row",
     "evidence_dense": "each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                       "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
                       "change is named in the row",

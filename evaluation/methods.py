@@ -94,14 +94,17 @@ class NetMethod:
     kept along the ground, its vertical part dropped; forty-second round), named (", level departures" / ", whole
     departures"). ``evidence_surface`` (κ, 0 = off) overrides the inference-only ``model.eval_evidence_surface`` (a
     departure taken only where the camera's motion leaves the point's neighbourhood off frame 2's surface; forty-third
-    round), named (", off-surface evidence κ" / ", evidence test alone")."""
+    round), named (", off-surface evidence κ" / ", evidence test alone"). ``neighbourhood_scale`` (true / false) overrides
+    the inference-only ``model.eval_neighbourhood_scale`` (the anchor's gate scale taken from the neighbourhood-median
+    departures it tests; forty-third round), named (", neighbourhood scale" / ", points' scale")."""
 
     def __init__(self, checkpoint: str | Path, device: str = "auto", name: str | None = None,
                  level: int = 0, eval_anchor: bool | None = None, turn_scan: float | None = None,
                  evidence_dense: bool | None = None, vote_gap: float | None = None,
                  vote_forward: bool | None = None, vote_density: float | None = None,
                  own_departure: bool | None = None, view_hold: bool | None = None,
-                 level_departure: bool | None = None, evidence_surface: float | None = None) -> None:
+                 level_departure: bool | None = None, evidence_surface: float | None = None,
+                 neighbourhood_scale: bool | None = None) -> None:
         import torch
 
         from training.model.registry import restore_flow_net
@@ -149,7 +152,9 @@ class NetMethod:
                 ("eval_level_departure", level_departure, bool, "anchor to level its departures",
                  lambda v: ", level departures" if v else ", whole departures"),
                 ("eval_evidence_surface", evidence_surface, float, "evidence test to read frame 2's surface",
-                 lambda v: f", off-surface evidence {v:g}" if v else ", evidence test alone")):
+                 lambda v: f", off-surface evidence {v:g}" if v else ", evidence test alone"),
+                ("eval_neighbourhood_scale", neighbourhood_scale, bool, "anchor to scale its gate by its neighbourhoods",
+                 lambda v: ", neighbourhood scale" if v else ", points' scale")):
             if override(field, value, lacks, lambda c, f=field, v=value, k=kind: replace(c, **{f: k(v)})):
                 suffix += note(value)
         cfg = ckpt["config"]

@@ -394,16 +394,18 @@ def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, 
     ("view_hold", "eval_view_hold", True, False, "view hold", ("--view-hold", "on"), None),
     ("level_departure", "eval_level_departure", True, False, "level departures", ("--level-departure", "on"), None),
     ("evidence_surface", "eval_evidence_surface", 1.5, 0.0, "off-surface evidence 1.5", ("--evidence-surface", "1.5"),
-     -1.0)])
+     -1.0),
+    ("neighbourhood_scale", "eval_neighbourhood_scale", True, False, "neighbourhood scale", ("--neighbourhood-scale", "on"),
+     None)])
 def test_an_inference_option_of_the_rigid_vote_can_be_set_for_a_trained_net_and_names_the_row(
         world: Path, tmp_path: Path, kwarg, field, on, off, suffix, flag, negative) -> None:
     """``--vote-gap`` / ``--vote-forward`` / ``--vote-density`` / ``--own-departure`` / ``--view-hold`` /
-    ``--level-departure`` / ``--evidence-surface`` and ``NetMethod(vote_gap | vote_forward | vote_density |
-    own_departure | view_hold | level_departure | evidence_surface=…)``: an anchored net trained before the option
+    ``--level-departure`` / ``--evidence-surface`` / ``--neighbourhood-scale`` and ``NetMethod(vote_gap | vote_forward |
+    vote_density | own_departure | view_hold | level_departure | evidence_surface | neighbourhood_scale=…)``: an anchored net trained before the option
     existed scored with the rigid vote choosing by its gap, starting along the optical axis or weighing its rounds by
     density, with the anchor's departures measured from the net's own motion, with the points leaving the view given
-    their neighbours' departure, with departures kept along the ground, or taken only off frame 2's surface (named, for
-    inference only); the option's off value leaves it as trained; a net without a rigid vote (or anchor), or a radius
+    their neighbours' departure, with departures kept along the ground, taken only off frame 2's surface or gated at the
+    scale of the neighbourhood medians (named, for inference only); the option's off value leaves it as trained; a net without a rigid vote (or anchor), or a radius
     or κ below zero: one error naming the option."""
     from core.errors import ConfigError
 

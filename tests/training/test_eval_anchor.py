@@ -342,3 +342,29 @@ def test_eval_evidence_surface_changes_the_finest_level_of_inference_passes_only
     assert torch.equal(out.flows[0], _flows(off.eval(), pc1, pc2)[0])
     _flows(on.train(), pc1, pc2)
     assert len(calls) == 1
+
+
+def test_eval_neighbourhood_scale_needs_the_anchor_and_changes_the_finest_level_of_inference_passes_only(monkeypatch):
+    """``eval_neighbourhood_scale``: refused without the anchor, dropped with it; an inference pass hands it to the
+    finest level's gate only (the one call held at the vote's motion), training steps and the net without it never."""
+    import training.model.halflownet as halflownet
+
+    with pytest.raises(ConfigError, match="eval_neighbourhood_scale"):
+        _cfg(eval_neighbourhood_scale=True)
+    assert _cfg(eval_anchor=True, eval_neighbourhood_scale=True).without_anchor().eval_neighbourhood_scale is False
+    seen: list[bool] = []
+    real = halflownet.rigid_plus_residual
+
+    def spy(*args, **kwargs):
+        seen.append(bool(args[14]) if len(args) > 14 else bool(kwargs.get("neighbourhood_scale", False)))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(halflownet, "rigid_plus_residual", spy)
+    pc1, pc2 = _pair()
+    on, off = _anchored_twins(eval_neighbourhood_scale=True, eval_gate_k=16)
+    _flows(on.eval(), pc1, pc2)
+    assert seen[-1] and not any(seen[:-1])  # the last gate call, the finest level's, and none before it
+    seen.clear()
+    _flows(off.eval(), pc1, pc2)
+    _flows(on.train(), pc1, pc2)
+    assert seen and not any(seen)

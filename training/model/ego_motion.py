@@ -108,7 +108,7 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
                         gate_spacing: float = 0.0, open_k: int = 0,
                         motion: tuple[Tensor, Tensor] | None = None, evidence: bool = False,
-                        surface: float = 0.0) -> EgoSplit:
+                        surface: float = 0.0, neighbourhood_scale: bool = False) -> EgoSplit:
     """Split ``flow`` (B, N, 3) at ``points`` (B, N, 3) into a robust rigid motion and a gated residual
     (an :class:`EgoSplit`). ``sigma`` (metres) is the residual
     at which a point counts half static, half moving; with ``mad_factor`` > 0 the scale is instead
@@ -137,7 +137,9 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     ``frame2``: the gate is shut wherever the point's own target ``p + f`` is no nearer to a frame-2 point
     than its rigid target ``T̂ p`` (a departure frame 2 does not support). ``surface`` κ > 0 with ``evidence``: the
     gate is also shut where fewer than a quarter of the point's neighbourhood (``gate_k`` nearest points, else the
-    point alone) have rigid targets off frame 2's surface (:func:`off_surface`).
+    point alone) have rigid targets off frame 2's surface (:func:`off_surface`). ``neighbourhood_scale`` with
+    ``gate_k`` > 1 and ``mad_factor`` > 0: the gate's robust scale is taken from the statistic it tests — the
+    neighbourhood medians' sizes, not the points' own residuals (at least ``sigma``; the fit is unchanged).
     """
     target = points + flow
     weights = torch.ones(points.shape[:2], dtype=points.dtype, device=points.device)
@@ -163,6 +165,11 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
         if gate_k > 1:
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
+            if neighbourhood_scale and mad_factor > 0:  # three robust deviations of what the gate tests
+                scale = mad_factor * 1.4826 * r2.sqrt().median(dim=1, keepdim=True).values
+                s2 = torch.clamp(scale * scale, min=sigma * sigma)
+                if gate_spacing > 0 and frame2 is not None:
+                    s2 = torch.maximum(s2, gate_spacing * gate_spacing * d_rigid[..., 0])
         gate = gate_value(r2, s2)[..., None]
         if evidence and frame2 is not None:
             d_own, _ = knn(target, frame2, 1)

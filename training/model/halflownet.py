@@ -145,14 +145,15 @@ class HALFlowNet(nn.Module):
     # ------------------------------------------------------------------ helpers
 
     def _ego(self, cfg: HALFlowConfig, xyz: Tensor, flow: Tensor, frame2: Tensor,
-             motion: tuple[Tensor, Tensor] | None = None, surface: float = 0.0
+             motion: tuple[Tensor, Tensor] | None = None, surface: float = 0.0, neighbourhood_scale: bool = False
              ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor | None, tuple[Tensor, Tensor] | None]:
         """The level's flow through the rigid ego-motion + residual head when ``ego_head`` is on, the fitted
         motion's flow ``T̂ p − p``, the gate's gap ``‖f − sg(f')‖²`` (B, n) between the flow that went in
         and the output, differentiable in the former (:mod:`training.losses.gate_pull`), and the gate
         ``m`` (B, n) in [0, 1] (0: held at the rigid flow); None without the head. ``frame2``: the level's
         frame-2 points (for ``ego_gate_spacing``); ``motion``: hold at this (R, t) instead of fitting one;
-        ``surface``: the evidence test's off-surface κ (``eval_evidence_surface``; 0 = off). Last,
+        ``surface``: the evidence test's off-surface κ (``eval_evidence_surface``; 0 = off);
+        ``neighbourhood_scale``: the gate's scale from its neighbourhood medians (``eval_neighbourhood_scale``). Last,
         the fitted (or given) motion (R (B, 3, 3), t (B, 3)), None without the head; ``cfg``: the pass's
         switches (:meth:`HALFlowConfig.at_inference` in eval mode)."""
         if not cfg.ego_head:
@@ -161,7 +162,7 @@ class HALFlowNet(nn.Module):
         out, R, t, _, gate = rigid_plus_residual(x, flow.float(), cfg.ego_sigma, cfg.ego_iterations, cfg.ego_mad_factor,
                                            cfg.ego_planar, cfg.ego_open_gradient, cfg.ego_gate_k,
                                            frame2.float(), cfg.ego_gate_spacing, cfg.ego_open_gradient_k, motion,
-                                           cfg.ego_gate_evidence, surface)
+                                           cfg.ego_gate_evidence, surface, neighbourhood_scale)
         rigid = x @ R.transpose(1, 2) + t[:, None] - x
         gap = ((flow.float() - out.detach()) ** 2).sum(-1)
         return out.to(flow.dtype), rigid.to(flow.dtype), gap, gate, (R, t)
@@ -369,8 +370,9 @@ class HALFlowNet(nn.Module):
                                  cfg.ego_mad_factor, cfg.ego_planar).to(flow.dtype)
         if cfg.eval_level_departure and cfg.held_at_vote and not self.training:
             flow = level_departure(flow)  # the vote-aligned frame: the flow is the departure (eval_level_departure)
-        surface = 0.0 if self.training else cfg.eval_evidence_surface  # the finest level's evidence test only
-        flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, evidence2, hold, surface)
+        surface = 0.0 if self.training else cfg.eval_evidence_surface  # the finest level's gate only
+        scale_k = cfg.eval_neighbourhood_scale and not self.training
+        flow, rigid, gap, gate, _ = self._ego(cfg, p1.xyz[0], flow, evidence2, hold, surface, scale_k)
         flows.insert(0, flow)
         rigids.insert(0, rigid)
         gaps.insert(0, gap if gap0 is None or gap is None else gap0 + gap)

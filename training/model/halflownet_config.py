@@ -199,6 +199,13 @@ class HALFlowConfig:
         or coarsely sampled clouds) is not taken; a mover's leading and trailing faces lie off it. Reads the
         evidence test's frame 2 (its whole input with ``eval_evidence_dense``). Inference only, no gradient; a
         departure; 0 = the evidence test alone (forty-third round).
+    eval_neighbourhood_scale: with ``eval_anchor`` (and ``eval_gate_k`` > 1; else it changes nothing): at inference
+        the finest level's gate compares each point's neighbourhood-median departure with three robust deviations of
+        those medians (``ego_mad_factor`` × 1.4826 × their median size, at least ``ego_sigma``) instead of three
+        robust deviations of the points' own departures, which a noisy net's static points widen while the median
+        over 16 neighbours averages their noise away: one run's gate scale doubled with training (0.20 → 0.39 m) and
+        shut on a third of its departing movers (``rigid_plus_residual(neighbourhood_scale=True)``). Inference only,
+        no gradient; a departure; false = the points' own (forty-third round).
     """
 
     n_points: int = 8192
@@ -248,6 +255,7 @@ class HALFlowConfig:
     eval_view_hold: bool = False
     eval_level_departure: bool = False
     eval_evidence_surface: float = 0.0
+    eval_neighbourhood_scale: bool = False
 
     def __post_init__(self) -> None:
         self.level_points = tuple(int(n) for n in self.level_points)
@@ -305,6 +313,9 @@ class HALFlowConfig:
         if self.eval_level_departure and not (self.eval_anchor or self.held_at_vote):
             raise ConfigError("model.eval_level_departure levels the anchor's departures: it needs model.eval_anchor "
                               "(or the finest level held at the vote's motion)")
+        if self.eval_neighbourhood_scale and not self.eval_anchor:
+            raise ConfigError("model.eval_neighbourhood_scale sets the anchor's gate scale from its neighbourhood "
+                              "medians: it needs model.eval_anchor")
         if not self.eval_evidence_surface >= 0:
             raise ConfigError(f"model.eval_evidence_surface must be >= 0, got {self.eval_evidence_surface}")
         if self.eval_evidence_surface and not (self.eval_anchor or self.ego_gate_evidence):
@@ -371,6 +382,7 @@ class HALFlowConfig:
                        eval_level_departure=self.eval_level_departure and self.held_at_vote,
                        eval_evidence_dense=self.eval_evidence_dense and self.ego_gate_evidence,
                        eval_evidence_surface=self.eval_evidence_surface if self.ego_gate_evidence else 0.0,
+                       eval_neighbourhood_scale=False,
                        rigid_vote_dense=self.rigid_vote_dense and keep_vote,
                        rigid_vote_far=self.rigid_vote_far and keep_vote,
                        rigid_vote_yaw_deg=self.rigid_vote_yaw_deg if keep_vote else 0.0,
