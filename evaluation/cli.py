@@ -67,8 +67,8 @@ NET_SWITCHES = {
                        "named in the row",
     "neighbourhood_scale": "each checkpoint's anchor compares a finest-level point's 16-neighbour median departure with "
                            "three robust deviations of those medians rather than of the points' own departures "
-                           "(model.eval_neighbourhood_scale, inference only; needs the anchor and its gate over k > 1 "
-                           "neighbours): on, off, or as trained; a change is named in the row",
+                           "(model.eval_neighbourhood_scale, inference only; needs the anchor, and changes nothing with "
+                           "a gate over k <= 1 neighbours): on, off, or as trained; a change is named in the row",
     "evidence_dense": "each checkpoint's evidence test at the finest level (model.eval_evidence_dense, inference "
                       "only; needs the anchor): frame 2's whole input (on) or its L0 sample (off), or as trained; a "
                       "change is named in the row",

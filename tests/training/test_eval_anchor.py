@@ -328,7 +328,7 @@ def test_eval_evidence_surface_changes_the_finest_level_of_inference_passes_only
 
     calls: list[tuple] = []
 
-    def spy(points, targets, frame2, kappa, k=0):
+    def spy(points, targets, frame2, kappa, k=0, nearest=None, neighbours=None):
         calls.append((points.shape[1], frame2.shape[1], kappa, k))
         return torch.ones(points.shape[:2], dtype=torch.bool, device=points.device)  # everything off the surface
 

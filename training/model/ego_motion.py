@@ -103,6 +103,13 @@ def gate_value(r2: Tensor, s2: Tensor | float) -> Tensor:
     return r2 * r2 / (s2 * s2 + r2 * r2)
 
 
+def _robust_scale2(r2: Tensor, mad_factor: float, sigma: float) -> Tensor:
+    """The squared robust scale (B, 1) of squared residuals ``r2`` (B, N, m²): (``mad_factor`` × 1.4826 × their
+    median size)², at least ``sigma``² (1.4826 × the median absolute value estimates a Gaussian's σ)."""
+    scale = mad_factor * 1.4826 * r2.sqrt().median(dim=1, keepdim=True).values
+    return torch.clamp(scale * scale, min=sigma * sigma)
+
+
 def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, iterations: int = 4,
                         mad_factor: float = 0.0, planar: bool = False,
                         open_gradient: bool = False, gate_k: int = 0, frame2: Tensor | None = None,
@@ -153,29 +160,27 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
             moved = points @ R.transpose(1, 2) + t[:, None]
             r2 = ((target - moved) ** 2).sum(-1)
             if mad_factor > 0:  # robust scale: mad_factor × 1.4826 × median residual, at least sigma
-                scale = mad_factor * 1.4826 * r2.sqrt().median(dim=1, keepdim=True).values
-                s2 = torch.clamp(scale * scale, min=sigma * sigma)
+                s2 = _robust_scale2(r2, mad_factor, sigma)
             weights = s2 / (s2 + r2)
     rigid = points @ R.transpose(1, 2) + t[:, None] - points
     with torch.no_grad():
         if frame2 is not None and (gate_spacing > 0 or evidence):  # squared distance rigid target → frame 2
-            d_rigid, _ = knn(moved, frame2, 1)
-        if gate_spacing > 0 and frame2 is not None:
-            s2 = torch.maximum(s2, gate_spacing * gate_spacing * d_rigid[..., 0])
+            d_rigid, near_rigid = knn(moved, frame2, 1)
+        idx = None
         if gate_k > 1:
             _, idx = knn(points, points, min(gate_k, points.shape[1]))
             r2 = (group(target - moved, idx).median(dim=2).values ** 2).sum(-1)
             if neighbourhood_scale and mad_factor > 0:  # three robust deviations of what the gate tests
-                scale = mad_factor * 1.4826 * r2.sqrt().median(dim=1, keepdim=True).values
-                s2 = torch.clamp(scale * scale, min=sigma * sigma)
-                if gate_spacing > 0 and frame2 is not None:
-                    s2 = torch.maximum(s2, gate_spacing * gate_spacing * d_rigid[..., 0])
+                s2 = _robust_scale2(r2, mad_factor, sigma)
+        if gate_spacing > 0 and frame2 is not None:
+            s2 = torch.maximum(s2, gate_spacing * gate_spacing * d_rigid[..., 0])
         gate = gate_value(r2, s2)[..., None]
         if evidence and frame2 is not None:
             d_own, _ = knn(target, frame2, 1)
             gate = gate * (d_own < d_rigid).to(gate.dtype)
             if surface > 0:
-                gate = gate * off_surface(points, moved, frame2, surface, gate_k)[..., None].to(gate.dtype)
+                off = off_surface(points, moved, frame2, surface, gate_k, (d_rigid, near_rigid), idx)
+                gate = gate * off[..., None].to(gate.dtype)
     out = rigid + gate * (flow - rigid)
     if open_gradient:
         through = flow
@@ -186,7 +191,8 @@ def rigid_plus_residual(points: Tensor, flow: Tensor, sigma: float = 0.25, itera
     return EgoSplit(out, R, t, weights, gate[..., 0])
 
 
-def off_surface(points: Tensor, targets: Tensor, frame2: Tensor, kappa: float, k: int = 0) -> Tensor:
+def off_surface(points: Tensor, targets: Tensor, frame2: Tensor, kappa: float, k: int = 0,
+                nearest: tuple[Tensor, Tensor] | None = None, neighbours: Tensor | None = None) -> Tensor:
     """Whether the camera's motion leaves a point's neighbourhood off frame 2's surface: (B, N) bool.
 
     ``points`` (B, N, 3) and their rigid targets ``targets`` (B, N, 3, ``T̂ p``), ``frame2`` (B, M, 3, M ≥ 2), all
@@ -196,17 +202,19 @@ def off_surface(points: Tensor, targets: Tensor, frame2: Tensor, kappa: float, k
     right camera motion lies on it has a gap of at most about 1; a mover's target, where the mover no longer is, lies
     off it. True where the 75th percentile of the gaps over the point's ``k`` nearest points (itself included; the
     point alone for ``k`` ≤ 1) exceeds ``kappa``: at least a quarter of its neighbourhood lies off the surface, as
-    an object's leading or trailing face does while its sides slide along their own surface. No gradient
+    an object's leading or trailing face does while its sides slide along their own surface. A caller that has them
+    already passes ``nearest`` (the squared distances and indices, each (B, N, 1), of ``knn(targets, frame2, 1)``) and
+    ``neighbours`` (the (B, N, k) indices of ``knn(points, points, k)``). No gradient
     (``HALFlowConfig.eval_evidence_surface``, forty-third round)."""
     if frame2.shape[1] < 2:  # no spacing to measure: no test
         return torch.ones(points.shape[:2], dtype=torch.bool, device=points.device)
     with torch.no_grad():
-        d2, near = knn(targets, frame2, 1)
+        d2, near = knn(targets, frame2, 1) if nearest is None else nearest
         s2, _ = knn(frame2, frame2, 2)
         spacing2 = s2[..., 1].gather(1, near[..., 0])
         gap = (d2[..., 0] / spacing2.clamp_min(1e-12)).sqrt()
         if k > 1:
-            _, idx = knn(points, points, min(k, points.shape[1]))
+            idx = knn(points, points, min(k, points.shape[1]))[1] if neighbours is None else neighbours
             gap = torch.quantile(group(gap[..., None], idx)[..., 0], 0.75, dim=-1)
         return gap > kappa
 
