@@ -148,7 +148,7 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     for k, idx in enumerate(np.array_split(order, cfg.pairs)):
         idx = np.sort(idx)
         if cfg.layout == "flownet3d":
-            _write_flownet3d_scene(part / f"{k:06d}.npz", pairs.subset(idx[cut[idx]]), moving[idx[cut[idx]]],
+            write_flownet3d_scene(part / f"{k:06d}.npz", pairs.subset(idx[cut[idx]]), moving[idx[cut[idx]]],
                                    np.random.default_rng([cfg.seed, k]))
         else:
             write_hpl_scene(part / f"{k:06d}", pairs.subset(idx), moving[idx])
@@ -159,7 +159,7 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     return int(cut.sum()) // cfg.pairs, float(moving[cut].mean())
 
 
-def _write_flownet3d_scene(path: Path, pairs: StereoPairs, moving: np.ndarray, rng: np.random.Generator) -> None:
+def write_flownet3d_scene(path: Path, pairs: StereoPairs, moving: np.ndarray, rng: np.random.Generator) -> None:
     """One FlowNet3D-layout scene (LiDAR-like axes): ``pos1``, its flow ``gt``, ``moving``, and ``pos2`` = the same
     points moved, in an order of their own (the file then says nothing about which row pairs with which)."""
     axes = FORMAT_AXES["flownet3d"]
