@@ -158,8 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "1's own points moved, as in splits built from correspondences (HPLFlowNet's stereoKITTI, "
                         "FlyingThings3D, FlowNet3D's kitti_rm_ground): no point left the view, so the view pruning is "
                         "left out; the polish refuses a registration that moves frame 1 away from frame 2's points "
-                        "(RigidPolishConfig.for_pairing); the refinement pairs points (RefineConfig.for_start); those "
-                        "rows are named '(point pairs)'. auto = 'points' for a format that stores frame 2 as frame "
+                        "(RigidPolishConfig.for_pairing); the refinement pairs points (RefineConfig.for_start) where the "
+                        "protocol's sampling keeps most of frame 1's counterparts in frame 2 (else it keeps the surface "
+                        "settings, saying so); those rows are named '(point pairs)'. auto = 'points' for a format that stores frame 2 as frame "
                         "1's points (hplflownet) or a split whose stored flow carries frame 1's points onto frame 2's "
                         "points (evaluation.pairing), else 'surface'. --refine-pairing is its former name")
     for field, text in NET_SWITCHES.items():  # on / off / as trained, each named after NetMethod's keyword
@@ -219,19 +220,22 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing: str = "surface") -> list:
+def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing: str = "surface",
+             refine_pairing: str | None = None) -> list:
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
     polish + refinement'). ``polish_off``: :data:`POLISH_OFF` switches of the polish turned off, named so
     ('<net> + rigid polish (no object step)'); ``pairing``: what frame 2 holds (``--pairing``), for the polish
-    (:meth:`RigidPolishConfig.for_pairing`) and the refinement (:func:`evaluation.methods.refined`), each row then
-    named '(point pairs)' where it differs."""
+    (:meth:`RigidPolishConfig.for_pairing`) and, unless ``refine_pairing`` says otherwise (the sampling keeps few
+    counterparts: :func:`evaluation.pairing.kept_share`), the refinement (:func:`evaluation.methods.refined`), each
+    row then named '(point pairs)' where it differs."""
     from evaluation.methods import make_method, refined
     from evaluation.rigid_polish import RigidPolishConfig
 
     rows = [net]
     for w in wrappers:
-        row = refined(rows[-1], pairing=pairing) if w == "refine" else make_method(w, rows[-1])
+        row = (refined(rows[-1], pairing=refine_pairing or pairing) if w == "refine"
+               else make_method(w, rows[-1]))
         if w == "rigid-polish":
             row.config = RigidPolishConfig.for_pairing(pairing)
             notes = [POLISH_OFF[k] for k in polish_off] + (["point pairs"] if pairing == "points" else [])
@@ -279,7 +283,7 @@ def _run(args) -> int:
         from evaluation.plots import _matplotlib
 
         _matplotlib()  # a missing optional extra is reported before any work
-    from evaluation.pairing import choose_pairing
+    from evaluation.pairing import MIN_KEPT, choose_pairing, kept_share
     from evaluation.scenes import check_not_trained_on, mapped_scenes, select_scenes
 
     seeds = _ints(args.seeds, "--seeds")
@@ -325,6 +329,14 @@ def _run(args) -> int:
         raise ConfigError("--pairing sets how --view-prune, --rigid-polish and --refine read frame 2: add one of them")
     if stacking and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
+    sizes = {(n.n_points, n.n_score) for n in nets}
+    if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
+        raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
+    n_points, n_score = sizes.pop() if sizes else (DEFAULT_POINTS[protocol], 2048)
+    if protocol in ("hplflownet", "flownet3d"):  # these fix the sample size; the net runs on any size
+        n_points = DEFAULT_POINTS[protocol]
+    cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
+                         n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     pairing = args.pairing
     if pairing == "auto" and stacking:  # read the split's construction only where a wrapper uses it
         choice = choose_pairing(scenes, split.fmt, REGISTRY[split.fmt].frame2_holds_frame1)
@@ -332,6 +344,14 @@ def _run(args) -> int:
         if pairing == "points":
             print(f"note: {args.split}: {choice.reason}; the stack pairs points (--pairing surface for the re-scan "
                   "settings)", file=sys.stderr)
+    refine_pairing = pairing
+    if pairing == "points" and args.refine:  # the counterparts the protocol's sampling keeps decide the data term
+        kept = kept_share(scenes, None if protocol == "full" else cfg.n_points)
+        if kept < MIN_KEPT:
+            refine_pairing = "surface"
+            print(f"note: {args.split}: the sampling keeps about {kept:.0%} of frame 1's counterparts in frame 2's "
+                  f"{cfg.n_points} points (median), so the refinement keeps the surface settings (evaluation.pairing)",
+                  file=sys.stderr)
     if pairing == "points" and args.view_prune:
         print("note: --view-prune is left out: frame 2 holds frame 1's own points, so none of them left the view",
               file=sys.stderr)
@@ -345,21 +365,13 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off, pairing) if any(m is n for n in nets) else [m])]
+                   for x in (_stacked(m, wrappers, off, pairing, refine_pairing) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device
     for b, m in named.items():
         if getattr(m, "needs_pose", False) and first.pose is None:
             raise ConfigError(f"baseline '{b}' needs T_1→2 per scene; the scenes of {args.split} have no pose")
-    sizes = {(n.n_points, n.n_score) for n in nets}
-    if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
-        raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
-    n_points, n_score = sizes.pop() if sizes else (DEFAULT_POINTS[protocol], 2048)
-    if protocol in ("hplflownet", "flownet3d"):  # these fix the sample size; the net runs on any size
-        n_points = DEFAULT_POINTS[protocol]
-    cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
-                         n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     for n in nets:
         if cfg.n_points < n.n_score:
             raise ConfigError(f"{n.name} needs at least {n.n_score} points per cloud, "

@@ -214,7 +214,9 @@ class RefineConfig(LoopConfig, ChamferConfig):
         towards one rigid motion (``rigid_weight`` 0) and none towards the start's static points (``static_weight``
         0: there the refinement's gains are the movers the polish called static) — NSFP's data term, which such
         splits reward (docs/learned-flow.md, thirty-fourth and thirty-eighth rounds). The split's construction, not
-        its flow, decides it."""
+        its flow, decides it; and ``monoflow-evaluate`` passes ``"points"`` only where the protocol's independent
+        sampling keeps most of the counterparts (:func:`evaluation.pairing.kept_share`): of thinly sampled
+        image-grid clouds the point-to-point term snaps far static points onto other samples (forty-fourth round)."""
         if pairing not in PAIRINGS:
             raise ConfigError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
         cfg = cls.after_registration() if registered else cls()

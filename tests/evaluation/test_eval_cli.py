@@ -457,20 +457,23 @@ def test_pairing_points_names_the_rows_and_needs_a_wrapper(world: Path, tmp_path
                  "--out", str(tmp_path / "x"), "--no-progress", "--max-scenes", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--pairing" in err[0] and not (tmp_path / "x").exists()
-    out = tmp_path / "eval"
+    out = tmp_path / "eval"  # every point sampled (the clouds are smaller): each keeps its counterpart
     assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--refine", "--pairing",
-                 "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+                 "points", "--n-points", "8192", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["ours (run, step 3)", "ours (run, step 3) + refinement (point pairs)"]
     capsys.readouterr()
-    out = tmp_path / "stack"
+    out = tmp_path / "stack"  # the tiny net's 256 points of each ~4000-point cloud: few counterparts kept
     assert main(["run", "--split", split, "--checkpoint", str(path), "--baselines", "", "--view-prune", "--rigid-polish",
                  "--refine", "--pairing", "points", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == [  # no view pruning: frame 2 holds frame 1's points, none left the view
         "ours (run, step 3)", "ours (run, step 3) + rigid polish (point pairs)",
-        "ours (run, step 3) + rigid polish (point pairs) + refinement (point pairs)"]
-    assert "--view-prune is left out" in capsys.readouterr().err
+        "ours (run, step 3) + rigid polish (point pairs) + refinement"]
+    err = capsys.readouterr().err
+    assert "--view-prune is left out" in err
+    notes = [line for line in err.splitlines() if "counterparts" in line]
+    assert len(notes) == 1 and "in frame 2's 256 points" in notes[0] and "surface settings" in notes[0]
 
 
 @pytest.mark.parametrize("fmt, pairing, suffix", [("flownet3d", "auto", ""), ("hplflownet", "auto", " (point pairs)"),
@@ -516,7 +519,7 @@ def test_the_refinement_pairs_points_where_a_flownet3d_split_was_written_from_co
     path = save_tiny_checkpoint(tmp_path / "run" / "latest.pt")
     out = tmp_path / "eval"
     assert main(["run", "--split", str(split), "--checkpoint", str(path), "--baselines", "", "--refine",
-                 "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
+                 "--n-points", "8192", "--out", str(out), "--no-progress", "--max-scenes", "1"]) == 0
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows][-1] == "ours (run, step 3) + refinement (point pairs)"
     notes = [line for line in capsys.readouterr().err.splitlines() if "pairs points" in line]

@@ -236,6 +236,34 @@ def test_with_frame_one_s_own_points_in_frame_two_point_pairs_follow_what_one_ri
     assert errors["points"] < 0.5 * errors["surface"] and errors["points"] < 0.5 * epe(start, gt), errors
 
 
+def test_after_independent_sampling_point_pairs_keep_too_few_counterparts_for_the_point_to_point_term() -> None:
+    """Forty-fourth round: a street of point pairs whose density falls with range as an image grid's (∝ 1/z², 4–30 m),
+    frame 2 frame 1's points moved by the camera, each frame sampled independently (1200 of 6000: a fifth of the
+    counterparts kept, below ``evaluation.pairing.MIN_KEPT``), the start the exact camera motion. The point-pair
+    settings snap the thinly sampled far points onto other samples; the surface settings, which the stack takes
+    where the sampling keeps few counterparts, hold them."""
+    from evaluation.pairing import MIN_KEPT
+
+    rng = np.random.default_rng(5)
+    n, m = 6000, 1200
+    z = 4.0 / (1 - rng.uniform(0, 1 - 4.0 / 30.0, n))  # inverse transform of a density ∝ 1/z² on [4, 30] m
+    side = rng.integers(0, 3, n)
+    x = np.where(side == 0, -5.0, np.where(side == 1, 6.0, rng.uniform(-5, 6, n)))
+    y = np.where(side == 2, 1.6, rng.uniform(-3, 1.6, n))
+    street_pts = np.c_[x, y, z]
+    moved = street_pts @ rotation_y(0.02).T + np.array([0.05, 0.0, -0.8])
+    s1, s2 = rng.choice(n, m, replace=False), rng.choice(n, m, replace=False)
+    assert m / n < MIN_KEPT
+    pc1, pc2 = street_pts[s1].astype(np.float32), moved[s2].astype(np.float32)
+    gt = (moved[s1] - street_pts[s1]).astype(np.float32)
+    static = np.ones(m, dtype=bool)  # what the polish marks
+    errors = {}
+    for pairing in ("surface", "points"):
+        cfg = dataclasses.replace(RefineConfig.for_start(True, pairing), iterations=60, patience=0)
+        errors[pairing] = epe(refine_flow(pc1, pc2, gt, cfg, static).flow.numpy(), gt)
+    assert errors["surface"] < 0.01 and errors["points"] > 3 * errors["surface"] + 0.02, errors
+
+
 def test_the_pairing_names_its_settings_and_its_row() -> None:
     assert RefineConfig.for_start(True) == RefineConfig.after_registration()
     assert RefineConfig.for_start(False) == RefineConfig()
