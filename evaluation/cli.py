@@ -159,10 +159,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "FlyingThings3D, FlowNet3D's kitti_rm_ground): no point left the view, so the view pruning is "
                         "left out; the polish refuses a registration that moves frame 1 away from frame 2's points "
                         "(RigidPolishConfig.for_pairing); the refinement pairs points (RefineConfig.for_start) where the "
-                        "protocol's sampling keeps most of frame 1's counterparts in frame 2 (else it keeps the surface "
-                        "settings, saying so); those rows are named '(point pairs)'. auto = 'points' for a format that stores frame 2 as frame "
-                        "1's points (hplflownet) or a split whose stored flow carries frame 1's points onto frame 2's "
-                        "points (evaluation.pairing), else 'surface'. --refine-pairing is its former name")
+                        "protocol's sampling keeps most of frame 1's counterparts in frame 2 (else it keeps the "
+                        "surface settings, saying so); those rows are named '(point pairs)'. auto = 'points' for a "
+                        "format that stores frame 2 as frame 1's points (hplflownet) or a split whose stored flow "
+                        "carries frame 1's points onto frame 2's points (evaluation.pairing), else 'surface'. "
+                        "--refine-pairing is its former name")
     for field, text in NET_SWITCHES.items():  # on / off / as trained, each named after NetMethod's keyword
         r.add_argument("--" + field.replace("_", "-"), default="as-trained", choices=tuple(AS_TRAINED), help=text)
     r.add_argument("--turn-scan", default="as-trained",
@@ -346,7 +347,7 @@ def _run(args) -> int:
                   "settings)", file=sys.stderr)
     refine_pairing = pairing
     if pairing == "points" and args.refine:  # the counterparts the protocol's sampling keeps decide the data term
-        kept = kept_share(scenes, None if protocol == "full" else cfg.n_points)
+        kept = kept_share(scenes, cfg.n_points)  # every protocol hands the methods n_points per cloud
         if kept < MIN_KEPT:
             refine_pairing = "surface"
             print(f"note: {args.split}: the sampling keeps about {kept:.0%} of frame 1's counterparts in frame 2's "
@@ -365,7 +366,8 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off, pairing, refine_pairing) if any(m is n for n in nets) else [m])]
+                   for x in (_stacked(m, wrappers, off, pairing, refine_pairing) if any(m is n for n in nets)
+                             else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device

@@ -87,7 +87,8 @@ def _picks(n: int) -> list[int]:
 def kept_share(scenes: Sequence[SceneFlowSample], n_points: int | None) -> float:
     """Median over up to :data:`CHECKED_SCENES` scenes of ``min(1, n_points / N₂)``: the share of frame 1's sampled
     points whose counterpart a protocol drawing ``n_points`` of frame 2's ``N₂`` points independently keeps in frame
-    2's sample (a smaller cloud is used whole: 1). ``n_points`` None: every point is used (1)."""
+    2's sample (a smaller cloud is used whole: 1; every protocol, ``full`` too, hands the methods ``n_points`` per
+    cloud, :func:`evaluation.protocols.prepare_scene`). ``n_points`` None: every point is used (1)."""
     if n_points is None:
         return 1.0
     shares = [min(1.0, n_points / max(scenes[i].n2, 1)) for i in _picks(len(scenes))]
