@@ -147,16 +147,28 @@ def build_split(cfg: RealStereoConfig) -> tuple[int, float]:
     order = np.random.default_rng(cfg.seed).permutation(len(pairs.pc1))
     for k, idx in enumerate(np.array_split(order, cfg.pairs)):
         idx = np.sort(idx)
-        if cfg.layout == "flownet3d":
-            write_flownet3d_scene(part / f"{k:06d}.npz", pairs.subset(idx[cut[idx]]), moving[idx[cut[idx]]],
-                                   np.random.default_rng([cfg.seed, k]))
-        else:
-            write_hpl_scene(part / f"{k:06d}", pairs.subset(idx), moving[idx])
+        write_scene(part, k, pairs.subset(idx), moving[idx], cfg.layout, cfg.seed)
     if cfg.layout == "hplflownet":
-        source = f"{Path(cfg.scene).name} {cfg.name} (pixels {{}} of {cfg.pairs}, seed {cfg.seed})"
-        (part / MAPPING).write_text("".join(source.format(k) + "\n" for k in range(cfg.pairs)), encoding="utf-8")
+        write_mapping(part, f"{Path(cfg.scene).name} {cfg.name} (pixels {{}} of {cfg.pairs}, seed {cfg.seed})",
+                      cfg.pairs)
     part.rename(out)
     return int(cut.sum()) // cfg.pairs, float(moving[cut].mean())
+
+
+def write_scene(split: Path, k: int, pairs: StereoPairs, moving: np.ndarray, layout: str, seed: int) -> None:
+    """Scene ``k`` of a split folder in ``layout``: every pair as HPLFlowNet's folder (its reader cuts), or the pairs
+    within the ``hplflownet`` reader's cut as a FlowNet3D ``.npz`` whose frame-2 rows are shuffled by ``(seed, k)``."""
+    if layout == "flownet3d":
+        cut = in_reader_cut(pairs)
+        write_flownet3d_scene(split / f"{k:06d}.npz", pairs.subset(cut), moving[cut], np.random.default_rng([seed, k]))
+    else:
+        write_hpl_scene(split / f"{k:06d}", pairs, moving)
+
+
+def write_mapping(split: Path, source: str, count: int) -> None:
+    """``mapping.txt``: one non-empty line per scene (``source`` formatted with the scene's index), so ``--protocol
+    hplflownet --mapping`` keeps every scene."""
+    (split / MAPPING).write_text("".join(source.format(k) + "\n" for k in range(count)), encoding="utf-8")
 
 
 def write_flownet3d_scene(path: Path, pairs: StereoPairs, moving: np.ndarray, rng: np.random.Generator) -> None:

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.real_stereo import LAYOUTS, MAPPING, in_reader_cut, write_flownet3d_scene
+from benchmarks.real_stereo import LAYOUTS, in_reader_cut, write_mapping, write_scene
 from core.errors import InputError, run_cli
 from core.geometry import backproject
 from pipeline.kitti.odometry import OdometrySequence
 from pipeline.kitti.png16 import read_depth_png
-from pipeline.kitti.stereo_flow import StereoPairs, write_hpl_scene
+from pipeline.kitti.stereo_flow import StereoPairs
 from pipeline.sources import GT_DEPTH_DIR, read_gt_flow
 
 
@@ -101,14 +101,9 @@ def build_split(cfg: SynthStereoConfig) -> tuple[int, int, float]:
         pairs, moving = pixel_pairs(seq, k)
         cut = in_reader_cut(pairs)
         kept, moved = kept + int(cut.sum()), moved + int((moving & cut).sum())
-        if cfg.layout == "flownet3d":
-            write_flownet3d_scene(part / f"{k:06d}.npz", pairs.subset(cut), moving[cut],
-                                  np.random.default_rng([cfg.seed, k]))
-        else:
-            write_hpl_scene(part / f"{k:06d}", pairs, moving)
+        write_scene(part, k, pairs, moving, cfg.layout, cfg.seed)
     if cfg.layout == "hplflownet":
-        source = f"{Path(cfg.world).name} sequence {cfg.sequence} pair {{}}"
-        (part / MAPPING).write_text("".join(source.format(k) + "\n" for k in range(count)), encoding="utf-8")
+        write_mapping(part, f"{Path(cfg.world).name} sequence {cfg.sequence} pair {{}}", count)
     part.rename(out)
     return count, kept // count, moved / max(kept, 1)
 
