@@ -47,7 +47,6 @@ movers' part on real shapes. Used in docs/learned-flow.md (seventeenth round)::
 
 from __future__ import annotations
 
-import argparse
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -284,14 +283,10 @@ def build_split(cfg: RealRigidConfig) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    from core.options import add_dataclass_args, build_config
+    from core.options import parse_config
 
-    p = argparse.ArgumentParser(prog="real_rigid", description=__doc__.split("\n\n")[0])
-    add_dataclass_args(p, RealRigidConfig)
-    cfg = build_config(RealRigidConfig, p.parse_args(argv), base=RealRigidConfig())
-    for name in ("scan", "calib", "out"):
-        if not getattr(cfg, name):
-            p.error(f"--{name} is required")
+    cfg = parse_config(RealRigidConfig, argv, "real_rigid", __doc__.split("\n\n")[0],
+                       required=("scan", "calib", "out"))
     n = build_split(cfg)
     print(f"real_rigid: {cfg.pairs} pairs of {n} points each in {cfg.out}")
     return 0

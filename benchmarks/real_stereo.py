@@ -33,7 +33,6 @@ Camera frames (x right, y down, z forward), metres.
 
 from __future__ import annotations
 
-import argparse
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -182,13 +181,10 @@ def write_flownet3d_scene(path: Path, pairs: StereoPairs, moving: np.ndarray, rn
 
 
 def _main(argv: list[str] | None) -> int:
-    from core.options import add_dataclass_args, build_config
+    from core.options import parse_config
 
-    p = argparse.ArgumentParser(prog="real_stereo", description=__doc__.split("\n\n")[0])
-    add_dataclass_args(p, RealStereoConfig)
-    cfg = build_config(RealStereoConfig, p.parse_args(argv), base=RealStereoConfig())
-    if not cfg.out:
-        p.error("--out is required")
+    cfg = parse_config(RealStereoConfig, argv, "real_stereo", __doc__.split("\n\n")[0],
+                       required=("out",))
     n, moving = build_split(cfg)
     print(f"real_stereo: {cfg.pairs} scenes of about {n} points each (after the reader's cuts) in {cfg.out}; "
           f"{moving:.1%} labelled moving")

@@ -21,7 +21,6 @@ Camera frames (x right, y down, z forward), metres.
 
 from __future__ import annotations
 
-import argparse
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,13 +108,10 @@ def build_split(cfg: SynthStereoConfig) -> tuple[int, int, float]:
 
 
 def _main(argv: list[str] | None) -> int:
-    from core.options import add_dataclass_args, build_config
+    from core.options import parse_config
 
-    p = argparse.ArgumentParser(prog="synth_stereo", description=__doc__.split("\n\n")[0])
-    add_dataclass_args(p, SynthStereoConfig)
-    cfg = build_config(SynthStereoConfig, p.parse_args(argv), base=SynthStereoConfig())
-    if not cfg.world or not cfg.out:
-        p.error("--world and --out are required")
+    cfg = parse_config(SynthStereoConfig, argv, "synth_stereo", __doc__.split("\n\n")[0],
+                       required=("world", "out"))
     n, kept, moving = build_split(cfg)
     print(f"synth_stereo: {n} scenes of about {kept} points each (after the reader's cuts) in {cfg.out}; "
           f"{moving:.1%} labelled moving")

@@ -267,6 +267,19 @@ def build_config(cls, args: argparse.Namespace, config_file: str | Path | None =
     return _build(cls, values, "", source)
 
 
+def parse_config(cls, argv: list[str] | None, prog: str, description: str, required: tuple[str, ...] = ()):
+    """``cls`` (a flat dataclass config) from command-line ``argv``: one flag per field (its field doc as help) over
+    the defaults; a field named in ``required`` left empty is argparse's usage error (``--<name> is required``,
+    exit code 2)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_dataclass_args(parser, cls)
+    cfg = build_config(cls, parser.parse_args(argv), base=cls())
+    for name in required:
+        if not getattr(cfg, name):
+            parser.error(f"--{name} is required")
+    return cfg
+
+
 def config_from_dict(cls, data: dict[str, Any], overrides: dict[str, Any] | None = None,
                      source: str = "saved config"):
     """Rebuild a (nested) dataclass config from its ``dataclasses.asdict`` form (or any part of it), with

@@ -10,6 +10,7 @@ import pytest
 
 from benchmarks.real_stereo import RealStereoConfig, build_split, dominant_motion, main
 from evaluation.readers import load_split
+from _point_pairs import assert_flownet3d_holds_the_same_pairs
 
 SCENE = "kitti_sceneflow2015_000139"
 CALIB = "kitti_raw_calib_2011_09_26/2011_09_26_calib/2011_09_26/calib_cam_to_cam.txt"
@@ -85,13 +86,5 @@ def test_the_flownet3d_layout_holds_the_same_pairs_as_frame_one_s_points_moved(s
     build_split(_cfg(shared_data, tmp_path / "fn3d", pairs=2, layout="flownet3d", rigid_background=rigid_background))
     assert sorted(p.name for p in (tmp_path / "fn3d").iterdir()) == ["000000.npz", "000001.npz"]
     hpl, fn3d = load_split(str(tmp_path / "hpl"), "auto"), load_split(str(tmp_path / "fn3d"), "auto")
-    assert fn3d.fmt == "flownet3d"
-    for a, b in zip(hpl, fn3d):
-        order_a, order_b = np.lexsort(a.pc1.T), np.lexsort(b.pc1.T)
-        np.testing.assert_allclose(b.pc1[order_b], a.pc1[order_a], atol=1e-5)
-        np.testing.assert_allclose(b.flow[order_b], a.flow[order_a], atol=1e-5)
-        np.testing.assert_array_equal(b.moving[order_b], a.moving[order_a])
-        moved = b.pc1 + b.flow
-        assert not np.allclose(b.pc2, moved)  # the rows are not paired ...
-        np.testing.assert_allclose(b.pc2[np.lexsort(b.pc2.T)], moved[np.lexsort(moved.T)], atol=1e-5)  # ... the points are
+    assert_flownet3d_holds_the_same_pairs(hpl, fn3d)
     assert choose_pairing(fn3d, "flownet3d", by_format=False).pairing == "points"

@@ -13,6 +13,7 @@ from core.geometry import project
 from evaluation.pairing import choose_pairing
 from evaluation.readers import load_split
 from pipeline.kitti.odometry import OdometrySequence
+from _point_pairs import assert_flownet3d_holds_the_same_pairs
 
 
 def test_pixels_become_pairs_whose_static_flow_is_the_camera_s_rigid_motion(synth_root: Path, tmp_path: Path):
@@ -41,12 +42,7 @@ def test_the_flownet3d_layout_holds_the_reader_s_pairs_in_rows_of_their_own(synt
     build_split(SynthStereoConfig(world=str(synth_root), pairs=2, out=str(tmp_path / "hpl")))
     build_split(SynthStereoConfig(world=str(synth_root), pairs=2, layout="flownet3d", out=str(tmp_path / "fn3d")))
     hpl, fn3d = load_split(str(tmp_path / "hpl"), "auto"), load_split(str(tmp_path / "fn3d"), "auto")
-    assert fn3d.fmt == "flownet3d"
-    for a, b in zip(hpl, fn3d):
-        order_a, order_b = np.lexsort(a.pc1.T), np.lexsort(b.pc1.T)
-        np.testing.assert_allclose(b.pc1[order_b], a.pc1[order_a], atol=1e-5)
-        np.testing.assert_allclose(b.flow[order_b], a.flow[order_a], atol=1e-5)
-        assert not np.allclose(b.pc2, b.pc1 + b.flow)  # frame 2's rows are shuffled
+    assert_flownet3d_holds_the_same_pairs(hpl, fn3d)
     assert choose_pairing(fn3d, "flownet3d", by_format=False).pairing == "points"
 
 
