@@ -37,6 +37,11 @@ usable around any method, combines the two:
    leaves frame 1 farther from pc2 — the mean nearest distance, truncated at ``pairs_check`` metres. On noisy
    stereo clouds the point-to-plane registration has a floor of a few centimetres, above a good method's own
    motion (docs/learned-flow.md, thirty-fifth round);
+3d. (``pairs_exact``, the same splits) refits the motion to the points of step 2 that land on frame-2 points
+   (:func:`evaluation.landing.register_on_landings`): the static points whose counterpart the sampling kept land on
+   it exactly under the right motion, so least squares on the pairs within a shrinking radius, keeping the motion
+   that lands the most of them within ``pairs_exact`` metres, takes a motion centimetres off onto the exact one
+   (docs/learned-flow.md, forty-fifth round);
 4. a frame-1 point takes the rigid flow ``T p − p`` when both say it moves with the camera: the method
    (it was kept in step 2) and the geometry (its polished target ``T p`` lands on pc2: the nearest pc2
    point is closer than ``max(static_scale_min, mad_factor · 1.4826 · median distance)``). The others —
@@ -108,6 +113,7 @@ from core.clusters import object_clusters, radius_components, view_interior
 from core.view import ViewExtent
 from evaluation.baselines.base import apply_transform, within_box
 from evaluation.baselines.icp import ICPConfig, icp
+from evaluation.landing import register_on_landings
 from evaluation.pairing import PAIRINGS
 from evaluation.rigid_fit import rigid_fit
 from evaluation.answers import ask
@@ -186,7 +192,11 @@ class RigidPolishConfig:
         Things on the ground move along it, and a re-scan's rings put a wrong vertical shift of one beam spacing
         (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method
         whose movers carry a vertical error starts the fit there and the fit settles a ring off (docs/learned-flow.md,
-        forty-second round). false = the method's whole median departure (before that round)."""
+        forty-second round). false = the method's whole median departure (before that round).
+    pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 3d: the registered motion
+        is refitted to the points of step 2 that land on frame-2 points, keeping the motion that lands the most of
+        them within this distance (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's
+        own rounding is far below it, a motion a centimetre off lands almost none. 0 = off (re-scans: the default)."""
 
     iterations: int = 20
     max_distance: float = 1.0
@@ -218,16 +228,18 @@ class RigidPolishConfig:
     ego_check_voxel: float = 1.0
     pairs_check: float = 0.0
     level_starts: bool = True
+    pairs_exact: float = 0.0
 
     @classmethod
     def for_pairing(cls, pairing: str = "surface") -> "RigidPolishConfig":
         """The settings for what frame 2 holds (:mod:`evaluation.pairing`, ``--pairing``): ``"surface"`` (a
         re-scan) the defaults; ``"points"`` (frame 1's own points moved) adds step 3c with ``pairs_check`` 0.1 m
         — the nearest distance of a point whose counterpart frame 2 holds is its motion's error, and 0.1 m
-        keeps a point whose counterpart was not sampled from outweighing the centimetres it compares."""
+        keeps a point whose counterpart was not sampled from outweighing the centimetres it compares — and step 3d
+        with ``pairs_exact`` 5 mm."""
         if pairing not in PAIRINGS:
             raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
-        return cls(pairs_check=0.1) if pairing == "points" else cls()
+        return cls(pairs_check=0.1, pairs_exact=0.005) if pairing == "points" else cls()
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
@@ -235,9 +247,9 @@ class RigidPolishConfig:
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
         if (self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0
-                or not self.pairs_check >= 0):
-            raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0, ego_check_voxel >= 0 and "
-                             "pairs_check >= 0")
+                or not self.pairs_check >= 0 or not self.pairs_exact >= 0):
+            raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0, ego_check_voxel >= 0, "
+                             "pairs_check >= 0 and pairs_exact >= 0")
         if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0
                 and self.object_search_min_points >= 0):
             raise ValueError("need object_search >= 0, object_search_peaks >= 1, object_search_rise >= 0 and "
@@ -299,6 +311,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         registered, started = _mean_gaps(p2, [apply_transform(T, p1), apply_transform(init, p1)], cfg.pairs_check)
         if registered > started:
             T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
+    if cfg.pairs_exact:
+        T = register_on_landings(p1[agree], p2, T, cfg.pairs_exact, tree2=tree2)[0]  # step 3d: onto exact landings
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)
