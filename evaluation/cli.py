@@ -221,21 +221,19 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
         raise ConfigError(f"{what} must be a comma list of integers, got {text!r}") from None
 
 
-def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing: str = "surface",
-             refine_pairing: str | None = None) -> list:
+def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing: str = "surface") -> list:
     """``net`` and one row per wrapper, each wrapping the previous row (``view-prune``, ``rigid-polish``, then
     ``refine``: the refinement starts from the polished view-pruned flow, named '<net> + view pruning + rigid
     polish + refinement'). ``polish_off``: :data:`POLISH_OFF` switches of the polish turned off, named so
     ('<net> + rigid polish (no object step)'); ``pairing``: what frame 2 holds (``--pairing``), for the polish
-    (:meth:`RigidPolishConfig.for_pairing`) and, unless ``refine_pairing`` says otherwise (the sampling keeps few
-    counterparts: :func:`evaluation.pairing.kept_share`), the refinement (:func:`evaluation.methods.refined`), each
-    row then named '(point pairs)' where it differs."""
+    (:meth:`RigidPolishConfig.for_pairing`) and the refinement (:func:`evaluation.methods.refined`), each row then
+    named '(point pairs)' where it differs."""
     from evaluation.methods import make_method, refined
     from evaluation.rigid_polish import RigidPolishConfig
 
     rows = [net]
     for w in wrappers:
-        row = (refined(rows[-1], pairing=refine_pairing or pairing) if w == "refine"
+        row = (refined(rows[-1], pairing=pairing) if w == "refine"
                else make_method(w, rows[-1]))
         if w == "rigid-polish":
             row.config = RigidPolishConfig.for_pairing(pairing)
@@ -284,7 +282,7 @@ def _run(args) -> int:
         from evaluation.plots import _matplotlib
 
         _matplotlib()  # a missing optional extra is reported before any work
-    from evaluation.pairing import MIN_KEPT, choose_pairing, kept_share
+    from evaluation.pairing import choose_pairing
     from evaluation.scenes import check_not_trained_on, mapped_scenes, select_scenes
 
     seeds = _ints(args.seeds, "--seeds")
@@ -345,14 +343,6 @@ def _run(args) -> int:
         if pairing == "points":
             print(f"note: {args.split}: {choice.reason}; the stack pairs points (--pairing surface for the re-scan "
                   "settings)", file=sys.stderr)
-    refine_pairing = pairing
-    if pairing == "points" and args.refine:  # the counterparts the protocol's sampling keeps decide the data term
-        kept = kept_share(scenes, cfg.n_points)  # every protocol hands the methods n_points per cloud
-        if kept < MIN_KEPT:
-            refine_pairing = "surface"
-            print(f"note: {args.split}: the sampling keeps about {kept:.0%} of frame 1's counterparts in frame 2's "
-                  f"{cfg.n_points} points (median), so the refinement keeps the surface settings (evaluation.pairing)",
-                  file=sys.stderr)
     if pairing == "points" and args.view_prune:
         print("note: --view-prune is left out: frame 2 holds frame 1's own points, so none of them left the view",
               file=sys.stderr)
@@ -366,7 +356,7 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off, pairing, refine_pairing) if any(m is n for n in nets)
+                   for x in (_stacked(m, wrappers, off, pairing) if any(m is n for n in nets)
                              else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):

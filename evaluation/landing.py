@@ -8,8 +8,10 @@ point whose counterpart was kept lands *on* a frame-2 point — to the split's r
 while a motion a few centimetres off lands almost none within a few millimetres. So the number of frame-1 points that
 land within ``tight`` metres of a frame-2 point, each counted by how near it lands (:func:`landings`), scores a camera
 motion far more sharply than any nearest-distance mean, and least squares on the pairs that land within a shrinking radius (:func:`register_on_landings`)
-walks a motion that is centimetres off onto the exact one. The rigid polish's step 3d
-(:attr:`evaluation.rigid_polish.RigidPolishConfig.pairs_exact`, forty-fifth round) uses it.
+walks a motion that is centimetres off onto the exact one. The rigid polish's step 7
+(:attr:`evaluation.rigid_polish.RigidPolishConfig.pairs_exact`, forty-fifth round) uses it. The same landings tell
+where a flow is right (:func:`confirmed`): a neighbourhood whose points the flow lands on frame-2 points, with the
+refinement keeping them (:attr:`evaluation.optimise.RefineConfig.confirm_radius`).
 
 No labels: only the two clouds and a start motion. Points in metres, camera frames (x right, y down, z forward);
 transforms are 4×4 and map camera 1 to camera 2.
@@ -27,7 +29,7 @@ from evaluation.baselines.base import apply_transform, kabsch
 RADII_M = (0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 0.001)
 MIN_PAIRS = 6  #: fewer pairs than this within a round's radius: the round is skipped (too few to fix a motion)
 
-__all__ = ["landings", "register_on_landings", "RADII_M"]
+__all__ = ["landings", "register_on_landings", "confirmed", "RADII_M"]
 
 
 def landings(T: np.ndarray, points: np.ndarray, tree2: cKDTree, tight: float) -> float:
@@ -68,3 +70,27 @@ def register_on_landings(points: np.ndarray, pc2: np.ndarray, T: np.ndarray, tig
         if n > best_n:
             best, best_n = current, n
     return best, best_n
+
+
+def confirmed(pc1: np.ndarray, flow: np.ndarray, pc2: np.ndarray, radius: float, miss: float = 0.01,
+              most: int = 64, least: int = 8, static: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: whether any of each point's k nearest frame-1 points (itself included) lands within ``radius``
+    metres of a frame-2 point of ``pc2`` (M, 3) under ``flow`` (N, 3) at ``pc1`` (N, 3).
+
+    Where frame 2 holds frame 1's points, a flow that is right around a point lands those of its neighbours whose
+    counterparts the sampling kept on frame-2 points; one wrong by more than ``radius`` lands them only by chance. The
+    share ``s`` of the points that land (of the ``static`` ones, (N,) bool, when given: the start's own guess of
+    what moves with the camera) estimates how many counterparts the sampling kept, and k is the smallest
+    neighbourhood in which a right flow lands none with a chance below ``miss``: ``(1 − s)^k < miss``, within
+    [``least``, ``most``] (a fifth kept: 21 points; a twentieth: 64). With fewer points than k, all of them."""
+    p1 = np.asarray(pc1, np.float64)
+    if len(p1) == 0 or len(pc2) == 0:
+        return np.zeros(len(p1), bool)
+    lands = np.isfinite(cKDTree(np.asarray(pc2, np.float64)).query(p1 + np.asarray(flow, np.float64),
+                                                                      distance_upper_bound=radius)[0])
+    pool = lands if static is None or not np.any(static) else lands[np.asarray(static, bool)]
+    share = float(pool.mean())
+    k = most if share <= 0 else int(np.clip(np.ceil(np.log(miss) / np.log1p(-min(share, 1 - 1e-12))), least, most))
+    k = min(k, len(p1))
+    near = cKDTree(p1).query(p1, k)[1].reshape(len(p1), k)
+    return lands[near].any(axis=1)

@@ -11,14 +11,11 @@ Two kinds of split ask for different view pruning, rigid polish and refinement
   issue 21). Where the protocol's independent sampling keeps most counterparts in frame 2's sample, the nearest
   frame-2 point often *is* the counterpart.
 
-Whether the sampling keeps them decides the refinement's data term (:func:`kept_share`, forty-fourth round): the
-protocol draws each frame's sample independently, so a frame-1 point keeps its counterpart with probability about
-``n_points / N₂``. Where that is most of them (the real stereo scene's 9 700-point scenes at HPLFlowNet's 8192: 84 %)
-the refinement pairs points; where it is a few (2048 of image-grid clouds of 7 000–37 000 points: 6–18 %) a point's
-nearest frame-2 sample is mostly another surface point, the point-to-point term snaps thinly sampled far static points
-onto it, and the refinement keeps the surface settings (21 synthetic image-grid splits, :mod:`benchmarks.synth_stereo`:
-point to point worse than the polish it started from on every one, static 0.01 → 0.05–0.13 m). The synthetic worlds'
-LiDAR pairs lie between (25–83 % kept), where the rule picks the better refinement on two splits of three.
+The protocol draws each frame's sample independently, so a frame-1 point keeps its counterpart in frame 2's sample
+with probability about ``n_points / N₂`` (the real stereo scene's 9 700-point scenes at HPLFlowNet's 8192: 84 %; 2048
+of image-grid clouds of 7 000–37 000 points: 6–18 %). Where it did, a right flow lands the point *on* a frame-2 point;
+the polish's step 7 and the refinement's confirmation read those landings (:mod:`evaluation.landing`, forty-fifth
+round), which hold however few counterparts are kept.
 
 A format may say so by construction (:attr:`evaluation.readers.base.SceneFlowFormat.frame2_holds_frame1`: the
 ``hplflownet`` layout stores no flow, its flow is ``pc2 − pc1``). Otherwise the file says how it was written:
@@ -43,7 +40,6 @@ PAIRINGS = ("surface", "points")  #: what frame 2 holds, in the words of ``--pai
 EXACT_M = 1e-3  #: a moved point "lands on" a frame-2 point within this distance (m; float32 keeps 1e-5 at 100 m)
 MIN_SHARE = 0.1  #: median share of landed points from which a split counts as written from correspondences
 CHECKED_SCENES = 8  #: scenes read for the check, spread evenly over the split
-MIN_KEPT = 0.5  #: median share of counterparts the sampling keeps from which the refinement pairs points
 
 
 def landed_share(sample: SceneFlowSample) -> float:
@@ -82,14 +78,3 @@ def choose_pairing(scenes: Sequence[SceneFlowSample], fmt: str, by_format: bool)
 def _picks(n: int) -> list[int]:
     """Up to :data:`CHECKED_SCENES` scene indices spread evenly over ``n`` scenes."""
     return sorted({int(i) for i in np.linspace(0, n - 1, min(n, CHECKED_SCENES))}) if n else []
-
-
-def kept_share(scenes: Sequence[SceneFlowSample], n_points: int | None) -> float:
-    """Median over up to :data:`CHECKED_SCENES` scenes of ``min(1, n_points / N₂)``: the share of frame 1's sampled
-    points whose counterpart a protocol drawing ``n_points`` of frame 2's ``N₂`` points independently keeps in frame
-    2's sample (a smaller cloud is used whole: 1; every protocol, ``full`` too, hands the methods ``n_points`` per
-    cloud, :func:`evaluation.protocols.prepare_scene`). ``n_points`` None: every point is used (1)."""
-    if n_points is None:
-        return 1.0
-    shares = [min(1.0, n_points / max(scenes[i].n2, 1)) for i in _picks(len(scenes))]
-    return float(np.median(shares)) if shares else 1.0

@@ -37,11 +37,6 @@ usable around any method, combines the two:
    leaves frame 1 farther from pc2 — the mean nearest distance, truncated at ``pairs_check`` metres. On noisy
    stereo clouds the point-to-plane registration has a floor of a few centimetres, above a good method's own
    motion (docs/learned-flow.md, thirty-fifth round);
-3d. (``pairs_exact``, the same splits) refits the motion to the points of step 2 that land on frame-2 points
-   (:func:`evaluation.landing.register_on_landings`): the static points whose counterpart the sampling kept land on
-   it exactly under the right motion, so least squares on the pairs within a shrinking radius, keeping the motion
-   that lands the most of them within ``pairs_exact`` metres, takes a motion centimetres off onto the exact one
-   (docs/learned-flow.md, forty-fifth round);
 4. a frame-1 point takes the rigid flow ``T p − p`` when both say it moves with the camera: the method
    (it was kept in step 2) and the geometry (its polished target ``T p`` lands on pc2: the nearest pc2
    point is closer than ``max(static_scale_min, mad_factor · 1.4826 · median distance)``). The others —
@@ -92,6 +87,13 @@ usable around any method, combines the two:
    replaces the first when it scores lower, lies in another basin (its points on average more than
    ``static_scale_min`` from the first fit's) and rises no more than ``object_search_rise``; the margin
    against the median motion is unchanged (docs/learned-flow.md, twenty-seventh round).
+7. (``pairs_exact``, splits whose frame 2 holds frame 1's own points) the points that still carry step 4's rigid
+   flow take that of the motion refitted onto exact landings (:func:`evaluation.landing.register_on_landings`, from
+   ``T``, on step 4's static points): those whose counterpart the sampling kept land on it exactly under the right
+   motion, so least squares on the pairs within a shrinking radius, keeping the motion that lands the most of them
+   within ``pairs_exact`` metres, takes a motion centimetres off onto the exact one. Last, so that steps 5 and 6 see
+   the registration they were tuned with: started from the exact motion the object fits of step 6 lost the cars
+   driving with the camera on the synthetic LiDAR pairs (docs/learned-flow.md, forty-fifth round).
 
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
@@ -193,9 +195,9 @@ class RigidPolishConfig:
         (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method
         whose movers carry a vertical error starts the fit there and the fit settles a ring off (docs/learned-flow.md,
         forty-second round). false = the method's whole median departure (before that round).
-    pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 3d: the registered motion
-        is refitted to the points of step 2 that land on frame-2 points, keeping the motion that lands the most of
-        them within this distance (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's
+    pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 7: the registered motion
+        is refitted to step 4's static points that land on frame-2 points, keeping the motion that lands the most of
+        them within this distance, and the points that kept step 4's rigid flow take the refitted one (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's
         own rounding is far below it, a motion a centimetre off lands almost none. 0 = off (re-scans: the default)."""
 
     iterations: int = 20
@@ -235,7 +237,7 @@ class RigidPolishConfig:
         """The settings for what frame 2 holds (:mod:`evaluation.pairing`, ``--pairing``): ``"surface"`` (a
         re-scan) the defaults; ``"points"`` (frame 1's own points moved) adds step 3c with ``pairs_check`` 0.1 m
         — the nearest distance of a point whose counterpart frame 2 holds is its motion's error, and 0.1 m
-        keeps a point whose counterpart was not sampled from outweighing the centimetres it compares — and step 3d
+        keeps a point whose counterpart was not sampled from outweighing the centimetres it compares — and step 7
         with ``pairs_exact`` 5 mm."""
         if pairing not in PAIRINGS:
             raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
@@ -311,8 +313,6 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         registered, started = _mean_gaps(p2, [apply_transform(T, p1), apply_transform(init, p1)], cfg.pairs_check)
         if registered > started:
             T = init  # step 3c: frame 2 holds frame 1's points, and they lie farther from them after the registration
-    if cfg.pairs_exact:
-        T = register_on_landings(p1[agree], p2, T, cfg.pairs_exact, tree2=tree2)[0]  # step 3d: onto exact landings
     target = apply_transform(T, p1)
     dist, _ = tree2.query(target)
     static = agree & _agreeing(dist, cfg)
@@ -325,6 +325,10 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
         if cfg.rigid_objects:
             view = ViewExtent.of(p2) if cfg.score_in_view else None
             _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
+    if cfg.pairs_exact and static.any():  # step 7: onto exact landings, where step 4's rigid flow still stands
+        kept = static & (np.abs(out - (target - p1)).max(axis=1) == 0)
+        T = register_on_landings(p1[static], p2, T, cfg.pairs_exact, tree2=tree2)[0]
+        out[kept] = (apply_transform(T, p1) - p1)[kept]
     return out.astype(np.float32), T, static
 
 

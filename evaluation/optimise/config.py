@@ -155,6 +155,15 @@ class RefineConfig(LoopConfig, ChamferConfig):
         them (on the crossing-traffic development worlds the refinement slid far static points on a wall along the
         road by 0.1–0.23 m; docs/learned-flow.md, thirty-eighth round). Quadratic, so a departure that frame 2
         supports across a surface still outweighs it. 0 = off, as with a start that marks no points.
+    confirm_radius: metres; for splits whose frame 2 holds frame 1's own points (``--pairing points``): a point
+        keeps its start flow when one of its nearest points lands within this distance of a frame-2 point under it
+        (:func:`evaluation.landing.confirmed`: a flow right around the point lands the neighbours whose counterparts
+        the sampling kept, a wrong one only by chance; the neighbourhood is as large as the share of the start's
+        static points that land makes it, so that a right flow's is missed with a chance below
+        ``confirm_miss``), and only the start's static points so confirmed are held (``static_weight``); the
+        refinement moves the rest — the movers the start took for static, which no landing confirms
+        (docs/learned-flow.md, forty-fifth round). 0 = off.
+    confirm_miss: that chance (dimensionless, in (0, 1)).
     layers, hidden: the residual MLP's size (``"mlp"`` and ``"rigid-mlp"``; smaller than NSFP's 8 × 128
         because it only corrects a given flow, and ~10× cheaper per step).
     truncate: the Chamfer truncation, metres; 1 m here against NSFP's 2 m, because the flow starts near
@@ -181,6 +190,8 @@ class RefineConfig(LoopConfig, ChamferConfig):
     plane: float = 0.0
     rigid_lr: float = 1e-2
     static_weight: float = 0.0
+    confirm_radius: float = 0.0
+    confirm_miss: float = 0.01
     layers: int = 4
     hidden: int = 32
 
@@ -210,17 +221,21 @@ class RefineConfig(LoopConfig, ChamferConfig):
         re-scan, a cloud from frame 2's own depth map — where a point's nearest frame-2 sample is not its
         counterpart, so those settings stand; ``"points"`` frame 1's own points moved, as in the splits built
         from correspondences (HPLFlowNet's stereoKITTI and FlyingThings3D, FlowNet3D's ``kitti_rm_ground``), where
-        the nearest sample often *is* the counterpart: the Chamfer term point-to-point (``plane`` 0), no pull
-        towards one rigid motion (``rigid_weight`` 0) and none towards the start's static points (``static_weight``
-        0: there the refinement's gains are the movers the polish called static) — NSFP's data term, which such
-        splits reward (docs/learned-flow.md, thirty-fourth and thirty-eighth rounds). The split's construction, not
-        its flow, decides it; and ``monoflow-evaluate`` passes ``"points"`` only where the protocol's independent
-        sampling keeps most of the counterparts (:func:`evaluation.pairing.kept_share`): of thinly sampled
-        image-grid clouds the point-to-point term snaps far static points onto other samples (forty-fourth round)."""
+        the nearest sample may be the counterpart: the Chamfer term point-to-point (``plane`` 0) and no pull towards
+        one rigid motion (``rigid_weight`` 0) — NSFP's data term, which such splits reward (docs/learned-flow.md,
+        thirty-fourth round). After a registration the start's flow stays wherever landings confirm it
+        (``confirm_radius`` 2 cm, :func:`evaluation.landing.confirmed`) and only its static points so confirmed are
+        held: the point-to-point term alone snaps the far static points of thinly sampled clouds onto other samples
+        (forty-fourth round), and the held static points it replaced kept the movers the polish took for static
+        (forty-fifth round). Without a registration no static points are held (``static_weight`` 0). The split's
+        construction, not its flow, decides it."""
         if pairing not in PAIRINGS:
             raise ConfigError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
         cfg = cls.after_registration() if registered else cls()
-        return replace(cfg, plane=0.0, rigid_weight=0.0, static_weight=0.0) if pairing == "points" else cfg
+        if pairing == "surface":
+            return cfg
+        cfg = replace(cfg, plane=0.0, rigid_weight=0.0)
+        return replace(cfg, confirm_radius=0.02) if registered else replace(cfg, static_weight=0.0)
 
     def validate(self) -> "RefineConfig":
         LoopConfig.validate(self)
@@ -233,4 +248,7 @@ class RefineConfig(LoopConfig, ChamferConfig):
             raise ConfigError(f"laplacian_k must be >= 1, got {self.laplacian_k}")
         if not 0 <= self.plane <= 1:
             raise ConfigError(f"plane must be in [0, 1], got {self.plane}")
+        if not self.confirm_radius >= 0 or not 0 < self.confirm_miss < 1:
+            raise ConfigError(f"confirm_radius must be >= 0 m and confirm_miss in (0, 1), got {self.confirm_radius}, "
+                              f"{self.confirm_miss}")
         return self

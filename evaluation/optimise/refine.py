@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from evaluation.answers import ask_marked
+from evaluation.landing import confirmed
 from evaluation.optimise.common import FlowMLP, as_tensor, resolve
 from evaluation.optimise.config import RefineConfig
 from evaluation.optimise.loop import FitResult, minimise
@@ -37,18 +38,25 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
                 cfg: RefineConfig | None = None, static: np.ndarray | Tensor | None = None) -> FitResult:
     """Refine ``init`` (N, 3) for the scene pc1 (N, 3) → pc2 (M, 3), metres; returns a :class:`FitResult`.
     ``static`` (N,) bool, optional: the points the start method marks static, held at ``init`` with
-    ``cfg.static_weight`` (none marked: no such term)."""
+    ``cfg.static_weight`` (none marked: no such term). With ``cfg.confirm_radius`` the points whose start flow
+    landings confirm keep it (and only the static ones among them are held)."""
     cfg = (cfg or RefineConfig()).validate()
     dev = resolve(cfg.device)
     p1, p2, f0 = as_tensor(pc1, dev), as_tensor(pc2, dev), as_tensor(init, dev)
     if f0.shape != p1.shape:
         raise ValueError(f"init flow has shape {tuple(f0.shape[1:])}, expected {tuple(p1.shape[1:])}")
+    kept = None  # the points whose start flow landings confirm (cfg.confirm_radius): they keep it
+    if cfg.confirm_radius > 0:
+        mask = None if static is None else (static.cpu().numpy() if isinstance(static, Tensor) else static)
+        kept = torch.as_tensor(confirmed(p1[0].cpu().numpy(), f0[0].cpu().numpy(), p2[0].cpu().numpy(),
+                                         cfg.confirm_radius, cfg.confirm_miss, static=mask), device=dev)
     held = None
     if static is not None and cfg.static_weight > 0:
         held = torch.as_tensor(np.asarray(static, dtype=bool) if not isinstance(static, Tensor) else static,
                                device=dev).reshape(-1)
         if held.shape[0] != p1.shape[1]:
             raise ValueError(f"static mask has {held.shape[0]} entries, expected {p1.shape[1]}")
+        held = held & kept if kept is not None else held
         held = held if bool(held.any()) else None
     pts = p1[0]
     rot0, t0, rigid0 = robust_rigid_fit(pts, f0[0], scale=cfg.rigid_scale)
@@ -92,7 +100,10 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
             loss = loss + cfg.static_weight * ((flow[0, held] - f0[0, held]) ** 2).sum(-1).mean()
         return loss, flow[0]
 
-    return minimise(params, step, cfg)
+    result = minimise(params, step, cfg)
+    if kept is not None:
+        result.flow[kept] = f0[0, kept]
+    return result
 
 
 @dataclass

@@ -469,11 +469,9 @@ def test_pairing_points_names_the_rows_and_needs_a_wrapper(world: Path, tmp_path
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [r["method"] for r in rows] == [  # no view pruning: frame 2 holds frame 1's points, none left the view
         "ours (run, step 3)", "ours (run, step 3) + rigid polish (point pairs)",
-        "ours (run, step 3) + rigid polish (point pairs) + refinement"]
+        "ours (run, step 3) + rigid polish (point pairs) + refinement (point pairs)"]
     err = capsys.readouterr().err
-    assert "--view-prune is left out" in err
-    notes = [line for line in err.splitlines() if "counterparts" in line]
-    assert len(notes) == 1 and "in frame 2's 256 points" in notes[0] and "surface settings" in notes[0]
+    assert "--view-prune is left out" in err and "counterparts" not in err  # however few are kept (forty-fifth round)
 
 
 @pytest.mark.parametrize("fmt, pairing, suffix", [("flownet3d", "auto", ""), ("hplflownet", "auto", " (point pairs)"),

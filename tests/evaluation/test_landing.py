@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from evaluation.baselines.base import apply_transform, transform_error
-from evaluation.landing import landings, register_on_landings
+from evaluation.landing import confirmed, landings, register_on_landings
 from testkit.rigid_scene import SMALL, motion, structured_scene
 
 
@@ -58,3 +58,17 @@ def test_too_few_points_return_the_start():
     T, n = register_on_landings(pc1[:4], pc2, SMALL, 0.005)
     np.testing.assert_array_equal(T, SMALL)
     assert n == landings(SMALL, pc1[:4], cKDTree(pc2), 0.005)
+
+
+def test_confirmed_where_the_flow_lands_neighbours_and_mostly_not_on_a_mover_left_static():
+    """The right flow everywhere but on a car (0.3 m off there, as a mover left with the camera's motion): a fifth of
+    the counterparts kept, so the neighbourhood ((1 − s)^k < 1 %) is about 21 points. The rest is confirmed; of the
+    car only the points whose neighbourhood reaches the road under it or a chance landing; an empty frame 2
+    confirms nothing."""
+    pc1, pc2 = _thin_pairs(3)
+    right = apply_transform(SMALL, pc1) - pc1
+    car = (np.abs(pc1[:, 0] + 3) < 1.0) & (np.abs(pc1[:, 2] - 8) < 2.1) & (pc1[:, 1] < 1.59)  # the box at (-3, ·, 8)
+    flow = right + car[:, None] * np.array([0.0, 0.0, 0.3])
+    sure = confirmed(pc1, flow, pc2, 0.02, static=~car)
+    assert car.sum() > 200 and sure[~car].mean() > 0.97 and sure[car].mean() < 0.5
+    assert not confirmed(pc1, right, np.zeros((0, 3)), 0.02).any()

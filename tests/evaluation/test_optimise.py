@@ -186,6 +186,10 @@ def test_bad_settings_are_config_errors() -> None:
         NSFPConfig(time_budget=-1.0).validate()
     with pytest.raises(ConfigError, match="static_weight"):
         RefineConfig(static_weight=-1.0).validate()
+    with pytest.raises(ConfigError, match="confirm"):
+        RefineConfig(confirm_radius=-0.01).validate()
+    with pytest.raises(ConfigError, match="confirm"):
+        RefineConfig(confirm_miss=1.0).validate()
 
 
 def test_refinement_along_the_normals_keeps_a_flow_that_lies_on_frame_two_surfaces() -> None:
@@ -236,41 +240,50 @@ def test_with_frame_one_s_own_points_in_frame_two_point_pairs_follow_what_one_ri
     assert errors["points"] < 0.5 * errors["surface"] and errors["points"] < 0.5 * epe(start, gt), errors
 
 
-def test_after_independent_sampling_point_pairs_keep_too_few_counterparts_for_the_point_to_point_term() -> None:
-    """Forty-fourth round: a street of point pairs whose density falls with range as an image grid's (∝ 1/z², 4–30 m),
-    frame 2 frame 1's points moved by the camera, each frame sampled independently (1200 of 6000: a fifth of the
-    counterparts kept, below ``evaluation.pairing.MIN_KEPT``), the start the exact camera motion. The point-pair
-    settings snap the thinly sampled far points onto other samples; the surface settings, which the stack takes
-    where the sampling keeps few counterparts, hold them."""
-    from evaluation.pairing import MIN_KEPT
-
-    rng = np.random.default_rng(5)
-    n, m = 6000, 1200
-    z = 4.0 / (1 - rng.uniform(0, 1 - 4.0 / 30.0, n))  # inverse transform of a density ∝ 1/z² on [4, 30] m
+def test_on_thin_point_pairs_landings_keep_the_static_points_and_free_a_mover_taken_for_static() -> None:
+    """Forty-fifth round: a street of point pairs whose density falls with range as an image grid's (∝ 1/z², 4–30 m),
+    each frame sampled independently (a fifth of the counterparts kept), with a car driving 0.3 m
+    ahead, the start the exact camera motion everywhere (the car taken for static, as the polish takes most movers on
+    such clouds), every point marked static. The surface settings hold the car with the rest; the point-to-point
+    settings free it and snap the static points; with ``confirm_radius`` the static points, whose neighbours land on
+    frame-2 points, keep their start, and the car, whose neighbours land on none, is refined."""
+    rng = np.random.default_rng(0)
+    n, cars = 6000, 1500
+    z = 4.0 / (1 - rng.uniform(0, 1 - 4.0 / 30.0, n))  # density ∝ 1/z² on [4, 30] m
     side = rng.integers(0, 3, n)
     x = np.where(side == 0, -5.0, np.where(side == 1, 6.0, rng.uniform(-5, 6, n)))
     y = np.where(side == 2, 1.6, rng.uniform(-3, 1.6, n))
-    street_pts = np.c_[x, y, z]
-    moved = street_pts @ rotation_y(0.02).T + np.array([0.05, 0.0, -0.8])
-    s1, s2 = rng.choice(n, m, replace=False), rng.choice(n, m, replace=False)
-    assert m / n < MIN_KEPT
-    pc1, pc2 = street_pts[s1].astype(np.float32), moved[s2].astype(np.float32)
-    gt = (moved[s1] - street_pts[s1]).astype(np.float32)
-    static = np.ones(m, dtype=bool)  # what the polish marks
-    errors = {}
-    for pairing in ("surface", "points"):
-        cfg = dataclasses.replace(RefineConfig.for_start(True, pairing), iterations=60, patience=0)
-        errors[pairing] = epe(refine_flow(pc1, pc2, gt, cfg, static).flow.numpy(), gt)
-    assert errors["surface"] < 0.01 and errors["points"] > 3 * errors["surface"] + 0.02, errors
+    car = np.c_[rng.uniform(1, 3, cars), rng.uniform(0, 1.6, cars), rng.uniform(8, 12, cars)]
+    world = np.r_[np.c_[x, y, z], car]
+    moving = np.r_[np.zeros(n, bool), np.ones(cars, bool)]
+    R, t = rotation_y(0.02), np.array([0.05, 0.0, -0.8])
+    moved = (world + moving[:, None] * np.array([0.0, 0.0, 0.3])) @ R.T + t
+    m = len(world) // 5
+    s1, s2 = rng.choice(len(world), m, replace=False), rng.choice(len(world), m, replace=False)
+    pc1, pc2 = world[s1].astype(np.float32), moved[s2].astype(np.float32)
+    gt, mv = (moved[s1] - world[s1]).astype(np.float32), moving[s1]
+    start = (world[s1] @ R.T + t - world[s1]).astype(np.float32)
+    pairs = dataclasses.replace(RefineConfig.for_start(True, "points"), iterations=60, patience=0)
+    runs = {"surface": dataclasses.replace(RefineConfig.for_start(True, "surface"), iterations=60, patience=0),
+            "points": dataclasses.replace(pairs, confirm_radius=0.0, static_weight=0.0),
+            "landings": pairs}
+    err = {}
+    for name, cfg in runs.items():
+        e = np.linalg.norm(refine_flow(pc1, pc2, start, cfg, np.ones(m, bool)).flow.numpy() - gt, axis=1)
+        err[name] = (float(e[~mv].mean()), float(e[mv].mean()))
+    assert err["surface"][1] > 0.28 and err["points"][0] > 0.03, err  # the car held / the static points snapped
+    assert err["landings"][0] < 0.005 and err["landings"][1] < 0.2, err
 
 
 def test_the_pairing_names_its_settings_and_its_row() -> None:
     assert RefineConfig.for_start(True) == RefineConfig.after_registration()
     assert RefineConfig.for_start(False) == RefineConfig()
     pairs = RefineConfig.for_start(True, "points")
-    assert pairs == dataclasses.replace(RefineConfig.after_registration(), plane=0.0, rigid_weight=0.0, static_weight=0.0)
+    assert pairs == dataclasses.replace(RefineConfig.after_registration(), plane=0.0, rigid_weight=0.0,
+                                        confirm_radius=0.02)
+    assert pairs.static_weight == 1.0 and RefineConfig.after_registration().confirm_radius == 0.0
     assert RefineConfig.after_registration().static_weight == 1.0 and RefineConfig().static_weight == 0.0
-    assert RefineConfig.for_start(False, "points") == dataclasses.replace(RefineConfig(), rigid_weight=0.0)
+    assert RefineConfig.for_start(False, "points") == dataclasses.replace(RefineConfig(), plane=0.0, rigid_weight=0.0)
     with pytest.raises(ConfigError, match="pairing"):
         RefineConfig.for_start(True, "lidar")
     zero = make_baseline("zero")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluation.pairing import CHECKED_SCENES, MIN_KEPT, MIN_SHARE, choose_pairing, kept_share, landed_share
+from evaluation.pairing import CHECKED_SCENES, MIN_SHARE, choose_pairing, landed_share
 from evaluation.sample import SceneFlowSample
 
 
@@ -71,16 +71,3 @@ def test_auto_pairing_reads_a_few_scenes_spread_over_the_split() -> None:
     scenes = _Counting([_pair(0, rescan=True)] * 50)
     choose_pairing(scenes, "flownet3d", by_format=False)
     assert len(scenes.read) == CHECKED_SCENES and scenes.read[0] == 0 and scenes.read[-1] == 49
-
-
-def test_the_kept_share_is_the_share_of_frame_two_the_sampling_draws() -> None:
-    """``n_points`` of frame 2's N₂ points drawn independently keep about n_points / N₂ of frame 1's counterparts;
-    a cloud smaller than the sample is used whole, and so is every cloud without a sample size."""
-    scenes = [_pair(s, rescan=False, keep=k) for s, k in ((0, 1.0), (1, 0.5), (2, 0.8))]  # N₂ 3000, 1500, 2400
-    assert [sc.n2 for sc in scenes] == [3000, 1500, 2400]
-    assert kept_share(scenes, 600) == 600 / 2400  # the median scene's
-    assert kept_share(scenes, 2048) == 2048 / 2400 and kept_share(scenes, 2048) >= MIN_KEPT
-    assert kept_share(scenes, 8192) == 1.0 and kept_share(scenes, None) == 1.0
-    # the measured sides of the threshold: 2048 of image-grid clouds of 7 000–37 000 points, against the real stereo
-    # scene's 9 700-point scenes at 8192 and the synthetic LiDAR pairs' 2 400 at 2048
-    assert 2048 / 7000 < MIN_KEPT < min(8192 / 9700, 2048 / 2400)

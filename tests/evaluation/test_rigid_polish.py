@@ -378,10 +378,10 @@ def test_on_point_pairs_a_registration_that_brings_frame_one_onto_its_points_sta
 
 
 def test_on_thinly_sampled_point_pairs_the_motion_is_refitted_onto_exact_landings(monkeypatch):
-    """Step 3d (``pairs_exact``): frame 2 is frame 1's street moved, both frames drawn independently from it (a
+    """Step 7 (``pairs_exact``): frame 2 is frame 1's street moved, both frames drawn independently from it (a
     fifth of the counterparts kept, as the protocols sample a point-pair split); the method's camera motion is
     0.1° and 2 cm off and the registration drifts by 3 cm. Step 3c alone keeps the nearer of the two (still
-    centimetres off); with step 3d the motion, and so every static point's flow, is exact."""
+    centimetres off); with step 7 the motion, and so every static point's flow, is exact."""
     from dataclasses import replace
 
     from testkit.rigid_scene import structured_scene
