@@ -3,15 +3,15 @@
 In a split written from correspondences (HPLFlowNet's stereoKITTI, FlowNet3D's ``kitti_rm_ground``, the image-grid
 splits of :mod:`benchmarks.synth_stereo`) frame 2's points are frame 1's points moved by their flow, and the protocol
 draws each frame's sample independently, so about ``n_points / N₂`` of frame 1's sampled points find their own
-counterpart in frame 2's sample (:func:`evaluation.pairing.kept_share`). Under the right camera motion every static
-point whose counterpart was kept lands *on* a frame-2 point — to the split's rounding, not to a sampling spacing —
-while a motion a few centimetres off lands almost none within a few millimetres. So the number of frame-1 points that
-land within ``tight`` metres of a frame-2 point, each counted by how near it lands (:func:`landings`), scores a camera
-motion far more sharply than any nearest-distance mean, and least squares on the pairs that land within a shrinking radius (:func:`register_on_landings`)
-walks a motion that is centimetres off onto the exact one. The rigid polish's step 7
-(:attr:`evaluation.rigid_polish.RigidPolishConfig.pairs_exact`, forty-fifth round) uses it. The same landings tell
-where a flow is right (:func:`confirmed`): a neighbourhood whose points the flow lands on frame-2 points, with the
-refinement keeping them (:attr:`evaluation.optimise.RefineConfig.confirm_radius`).
+counterpart in frame 2's sample (:mod:`evaluation.pairing`). Under the right camera motion every static point whose
+counterpart was kept lands *on* a frame-2 point — to the split's rounding, not to a sampling spacing — while a motion a
+few centimetres off lands almost none within a few millimetres. So the number of frame-1 points that land within
+``tight`` metres of a frame-2 point, each counted by how near it lands (:func:`landings`), scores a camera motion far
+more sharply than any nearest-distance mean, and least squares on the pairs that land within a shrinking radius
+(:func:`register_on_landings`) walks a motion that is centimetres off onto the exact one: the rigid polish's step 7
+(:attr:`evaluation.rigid_polish.RigidPolishConfig.pairs_exact`, forty-fifth round). The same landings tell where a
+flow is right (:func:`confirmed`): around a point whose neighbours it lands on frame-2 points, which the refinement
+then keeps (:attr:`evaluation.optimise.RefineConfig.confirm_radius`).
 
 No labels: only the two clouds and a start motion. Points in metres, camera frames (x right, y down, z forward);
 transforms are 4×4 and map camera 1 to camera 2.
@@ -47,13 +47,15 @@ def landings(T: np.ndarray, points: np.ndarray, tree2: cKDTree, tight: float) ->
 def register_on_landings(points: np.ndarray, pc2: np.ndarray, T: np.ndarray, tight: float,
                          radii: tuple[float, ...] = RADII_M, tree2: cKDTree | None = None) -> tuple[np.ndarray, float]:
     """``(T', n)``: the camera motion (4, 4) that lands the most of ``points`` (N, 3, camera 1; the points taken to
-    move with the camera) within ``tight`` metres of a frame-2 point of ``pc2`` (M, 3), and that number ``n`` (:func:`landings`).
+    move with the camera) within ``tight`` metres of a frame-2 point of ``pc2`` (M, 3), and that number ``n``
+    (:func:`landings`).
 
     From the start ``T``, each round pairs every point with its nearest frame-2 point under the current motion,
-    keeps the pairs closer than that round's radius (``radii``, metres, widest first and down to below ``tight``) and refits the motion to them by least
-    squares (:func:`evaluation.baselines.base.kabsch`). The motion with the most landings among the start and the
-    rounds is returned, so the answer never lands fewer points than the start: where frame 2 holds no counterparts
-    (a re-scan) the start stands, up to a motion that lands a few more points by chance."""
+    keeps the pairs closer than that round's radius (``radii``, metres, widest first and down to below ``tight``)
+    and refits the motion to them by least squares (:func:`evaluation.baselines.base.kabsch`). The motion with the
+    most landings among the start and the rounds is returned, so the answer never lands fewer points than the start:
+    where frame 2 holds no counterparts (a re-scan) the start stands, up to a motion that lands a few more points by
+    chance."""
     pts = np.asarray(points, np.float64)
     tree2 = cKDTree(np.asarray(pc2, np.float64)) if tree2 is None else tree2
     best, best_n = np.asarray(T, np.float64), landings(T, pts, tree2, tight)

@@ -197,8 +197,9 @@ class RigidPolishConfig:
         forty-second round). false = the method's whole median departure (before that round).
     pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 7: the registered motion
         is refitted to step 4's static points that land on frame-2 points, keeping the motion that lands the most of
-        them within this distance, and the points that kept step 4's rigid flow take the refitted one (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's
-        own rounding is far below it, a motion a centimetre off lands almost none. 0 = off (re-scans: the default)."""
+        them within this distance, and the points that kept step 4's rigid flow take the refitted one
+        (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's own rounding is far below
+        it, a motion a centimetre off lands almost none. 0 = off (re-scans: the default)."""
 
     iterations: int = 20
     max_distance: float = 1.0

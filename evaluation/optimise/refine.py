@@ -45,17 +45,19 @@ def refine_flow(pc1: np.ndarray | Tensor, pc2: np.ndarray | Tensor, init: np.nda
     p1, p2, f0 = as_tensor(pc1, dev), as_tensor(pc2, dev), as_tensor(init, dev)
     if f0.shape != p1.shape:
         raise ValueError(f"init flow has shape {tuple(f0.shape[1:])}, expected {tuple(p1.shape[1:])}")
+    marked = None
+    if static is not None:
+        marked = (static.detach().cpu().numpy() if isinstance(static, Tensor) else np.asarray(static)).astype(bool)
+        marked = marked.reshape(-1)
+        if marked.shape[0] != p1.shape[1]:
+            raise ValueError(f"static mask has {marked.shape[0]} entries, expected {p1.shape[1]}")
     kept = None  # the points whose start flow landings confirm (cfg.confirm_radius): they keep it
     if cfg.confirm_radius > 0:
-        mask = None if static is None else (static.cpu().numpy() if isinstance(static, Tensor) else static)
         kept = torch.as_tensor(confirmed(p1[0].cpu().numpy(), f0[0].cpu().numpy(), p2[0].cpu().numpy(),
-                                         cfg.confirm_radius, cfg.confirm_miss, static=mask), device=dev)
+                                         cfg.confirm_radius, cfg.confirm_miss, static=marked), device=dev)
     held = None
-    if static is not None and cfg.static_weight > 0:
-        held = torch.as_tensor(np.asarray(static, dtype=bool) if not isinstance(static, Tensor) else static,
-                               device=dev).reshape(-1)
-        if held.shape[0] != p1.shape[1]:
-            raise ValueError(f"static mask has {held.shape[0]} entries, expected {p1.shape[1]}")
+    if marked is not None and cfg.static_weight > 0:
+        held = torch.as_tensor(marked, device=dev)
         held = held & kept if kept is not None else held
         held = held if bool(held.any()) else None
     pts = p1[0]
