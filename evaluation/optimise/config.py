@@ -160,7 +160,7 @@ class RefineConfig(LoopConfig, ChamferConfig):
         (:func:`evaluation.landing.confirmed`: a flow right around the point lands the neighbours whose counterparts
         the sampling kept, a wrong one only by chance; the neighbourhood is as large as the share of the start's
         static points that land makes it, so that a right flow's is missed with a chance below
-        ``confirm_miss``), and only the start's static points so confirmed are held (``static_weight``); the
+        ``confirm_miss``), and with ``static_weight`` only the start's static points so confirmed are held; the
         refinement moves the rest — the movers the start took for static, which no landing confirms
         (docs/learned-flow.md, forty-fifth round). 0 = off.
     confirm_miss: that chance (dimensionless, in (0, 1)).
@@ -224,18 +224,17 @@ class RefineConfig(LoopConfig, ChamferConfig):
         the nearest sample may be the counterpart: the Chamfer term point-to-point (``plane`` 0) and no pull towards
         one rigid motion (``rigid_weight`` 0) — NSFP's data term, which such splits reward (docs/learned-flow.md,
         thirty-fourth round). After a registration the start's flow stays wherever landings confirm it
-        (``confirm_radius`` 2 cm, :func:`evaluation.landing.confirmed`) and only its static points so confirmed are
-        held: the point-to-point term alone snaps the far static points of thinly sampled clouds onto other samples
-        (forty-fourth round), and the held static points it replaced kept the movers the polish took for static
-        (forty-fifth round). Without a registration no static points are held (``static_weight`` 0). The split's
-        construction, not its flow, decides it."""
+        (``confirm_radius`` 2 cm, :func:`evaluation.landing.confirmed`), and nothing is held (``static_weight`` 0):
+        the point-to-point term alone snaps the far static points of thinly sampled clouds onto other samples
+        (forty-fourth round), the surface settings that replaced it kept the movers the polish took for static, and
+        a hold on the confirmed static points restrained the movers beside them through the residual MLP's
+        smoothness (forty-fifth round). The split's construction, not its flow, decides it."""
         if pairing not in PAIRINGS:
             raise ConfigError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
         cfg = cls.after_registration() if registered else cls()
         if pairing == "surface":
             return cfg
-        cfg = replace(cfg, plane=0.0, rigid_weight=0.0)
-        return replace(cfg, confirm_radius=0.02) if registered else replace(cfg, static_weight=0.0)
+        return replace(cfg, plane=0.0, rigid_weight=0.0, static_weight=0.0, confirm_radius=0.02 if registered else 0.0)
 
     def validate(self) -> "RefineConfig":
         LoopConfig.validate(self)

@@ -246,7 +246,7 @@ def test_on_thin_point_pairs_landings_keep_the_static_points_and_free_a_mover_ta
     ahead, the start the exact camera motion everywhere (the car taken for static, as the polish takes most movers on
     such clouds), every point marked static. The surface settings hold the car with the rest; the point-to-point
     settings free it and snap the static points; with ``confirm_radius`` the static points, whose neighbours land on
-    frame-2 points, keep their start, and the car, whose neighbours land on none, is refined."""
+    frame-2 points, keep their start, and the car, whose neighbours land on none, is refined point to point."""
     rng = np.random.default_rng(0)
     n, cars = 6000, 1500
     z = 4.0 / (1 - rng.uniform(0, 1 - 4.0 / 30.0, n))  # density ∝ 1/z² on [4, 30] m
@@ -280,8 +280,8 @@ def test_the_pairing_names_its_settings_and_its_row() -> None:
     assert RefineConfig.for_start(False) == RefineConfig()
     pairs = RefineConfig.for_start(True, "points")
     assert pairs == dataclasses.replace(RefineConfig.after_registration(), plane=0.0, rigid_weight=0.0,
-                                        confirm_radius=0.02)
-    assert pairs.static_weight == 1.0 and RefineConfig.after_registration().confirm_radius == 0.0
+                                        static_weight=0.0, confirm_radius=0.02)
+    assert RefineConfig.after_registration().static_weight == 1.0 and RefineConfig.after_registration().confirm_radius == 0
     assert RefineConfig.after_registration().static_weight == 1.0 and RefineConfig().static_weight == 0.0
     assert RefineConfig.for_start(False, "points") == dataclasses.replace(RefineConfig(), plane=0.0, rigid_weight=0.0)
     with pytest.raises(ConfigError, match="pairing"):
