@@ -158,12 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "1's own points moved, as in splits built from correspondences (HPLFlowNet's stereoKITTI, "
                         "FlyingThings3D, FlowNet3D's kitti_rm_ground): no point left the view, so the view pruning is "
                         "left out; the polish refuses a registration that moves frame 1 away from frame 2's points "
-                        "(RigidPolishConfig.for_pairing); the refinement pairs points (RefineConfig.for_start) where the "
-                        "protocol's sampling keeps most of frame 1's counterparts in frame 2 (else it keeps the "
-                        "surface settings, saying so); those rows are named '(point pairs)'. auto = 'points' for a "
-                        "format that stores frame 2 as frame 1's points (hplflownet) or a split whose stored flow "
-                        "carries frame 1's points onto frame 2's points (evaluation.pairing), else 'surface'. "
-                        "--refine-pairing is its former name")
+                        "and refits its camera motion onto the points that land exactly on frame 2's "
+                        "(RigidPolishConfig.for_pairing); the refinement keeps the polished flow where such landings "
+                        "confirm it and pairs the rest point to point (RefineConfig.for_start); those rows are named "
+                        "'(point pairs)'. auto = 'points' for a format that stores frame 2 as frame 1's points "
+                        "(hplflownet) or a split whose stored flow carries frame 1's points onto frame 2's points "
+                        "(evaluation.pairing), else 'surface'. --refine-pairing is its former name")
     for field, text in NET_SWITCHES.items():  # on / off / as trained, each named after NetMethod's keyword
         r.add_argument("--" + field.replace("_", "-"), default="as-trained", choices=tuple(AS_TRAINED), help=text)
     r.add_argument("--turn-scan", default="as-trained",
@@ -233,8 +233,7 @@ def _stacked(net, wrappers: list[str], polish_off: tuple[str, ...] = (), pairing
 
     rows = [net]
     for w in wrappers:
-        row = (refined(rows[-1], pairing=pairing) if w == "refine"
-               else make_method(w, rows[-1]))
+        row = refined(rows[-1], pairing=pairing) if w == "refine" else make_method(w, rows[-1])
         if w == "rigid-polish":
             row.config = RigidPolishConfig.for_pairing(pairing)
             notes = [POLISH_OFF[k] for k in polish_off] + (["point pairs"] if pairing == "points" else [])
@@ -328,14 +327,6 @@ def _run(args) -> int:
         raise ConfigError("--pairing sets how --view-prune, --rigid-polish and --refine read frame 2: add one of them")
     if stacking and not nets:
         raise ConfigError("--refine, --view-prune and --rigid-polish wrap a net: give at least one --checkpoint")
-    sizes = {(n.n_points, n.n_score) for n in nets}
-    if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
-        raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
-    n_points, n_score = sizes.pop() if sizes else (DEFAULT_POINTS[protocol], 2048)
-    if protocol in ("hplflownet", "flownet3d"):  # these fix the sample size; the net runs on any size
-        n_points = DEFAULT_POINTS[protocol]
-    cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
-                         n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     pairing = args.pairing
     if pairing == "auto" and stacking:  # read the split's construction only where a wrapper uses it
         choice = choose_pairing(scenes, split.fmt, REGISTRY[split.fmt].frame2_holds_frame1)
@@ -356,14 +347,21 @@ def _run(args) -> int:
     if wrappers:  # after the nets got distinct names; the wrapped rows right after each net's own row
         off = tuple(k for k in POLISH_OFF if getattr(args, k) == "off")
         methods = [x for m in methods
-                   for x in (_stacked(m, wrappers, off, pairing) if any(m is n for n in nets)
-                             else [m])]
+                   for x in (_stacked(m, wrappers, off, pairing) if any(m is n for n in nets) else [m])]
     for m in methods:  # the per-scene optimisation (nsfp, refinement: LoopConfig.device) runs on --device too
         if hasattr(getattr(m, "config", None), "device"):
             m.config.device = args.device
     for b, m in named.items():
         if getattr(m, "needs_pose", False) and first.pose is None:
             raise ConfigError(f"baseline '{b}' needs T_1→2 per scene; the scenes of {args.split} have no pose")
+    sizes = {(n.n_points, n.n_score) for n in nets}
+    if len(sizes) > 1 and (args.n_points is None or args.n_score is None):
+        raise ConfigError(f"checkpoints expect different point counts {sorted(sizes)}: pass --n-points and --n-score")
+    n_points, n_score = sizes.pop() if sizes else (DEFAULT_POINTS[protocol], 2048)
+    if protocol in ("hplflownet", "flownet3d"):  # these fix the sample size; the net runs on any size
+        n_points = DEFAULT_POINTS[protocol]
+    cfg = ProtocolConfig(protocol=protocol, n_points=args.n_points or n_points,
+                         n_score=args.n_score or n_score, seeds=seeds, warmup=not args.no_warmup).validate()
     for n in nets:
         if cfg.n_points < n.n_score:
             raise ConfigError(f"{n.name} needs at least {n.n_score} points per cloud, "

@@ -65,7 +65,8 @@ def choose_pairing(scenes: Sequence[SceneFlowSample], fmt: str, by_format: bool)
     :func:`landed_share` over up to :data:`CHECKED_SCENES` scenes spread over ``scenes`` reaches :data:`MIN_SHARE`; else ``"surface"``."""
     if by_format:
         return PairingChoice("points", f"the {fmt} layout stores frame 2 as frame 1's points moved")
-    picks = _picks(len(scenes))
+    n = len(scenes)
+    picks = sorted({int(i) for i in np.linspace(0, n - 1, min(n, CHECKED_SCENES))}) if n else []
     shares = [landed_share(scenes[i]) for i in picks]
     share = float(np.median(shares)) if shares else 0.0
     where = f"{share:.0%} of frame 1's points land within {EXACT_M * 1000:g} mm of a frame-2 point under the stored flow"
@@ -73,8 +74,3 @@ def choose_pairing(scenes: Sequence[SceneFlowSample], fmt: str, by_format: bool)
         return PairingChoice("points", f"{where} (median of {len(picks)} scenes): the split was written from "
                                        "correspondences")
     return PairingChoice("surface", f"{where} (median of {len(picks)} scenes): frame 2 is another sampling")
-
-
-def _picks(n: int) -> list[int]:
-    """Up to :data:`CHECKED_SCENES` scene indices spread evenly over ``n`` scenes."""
-    return sorted({int(i) for i in np.linspace(0, n - 1, min(n, CHECKED_SCENES))}) if n else []
