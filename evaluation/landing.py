@@ -29,7 +29,16 @@ from evaluation.baselines.base import apply_transform, kabsch
 RADII_M = (0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 0.001)
 MIN_PAIRS = 6  #: fewer pairs than this within a round's radius: the round is skipped (too few to fix a motion)
 
-__all__ = ["landings", "register_on_landings", "confirmed", "RADII_M"]
+__all__ = ["landed", "landings", "register_on_landings", "confirmed", "RADII_M"]
+
+
+def landed(moved: np.ndarray, pc2: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) bool: whether each of ``moved`` (N, 3, frame-1 points carried into camera 2) lies within ``radius`` metres
+    of a point of ``pc2`` (M, 3); all false when either cloud is empty."""
+    moved = np.asarray(moved, np.float64)
+    if len(moved) == 0 or len(pc2) == 0:
+        return np.zeros(len(moved), bool)
+    return np.isfinite(cKDTree(np.asarray(pc2, np.float64)).query(moved, distance_upper_bound=radius)[0])
 
 
 def landings(T: np.ndarray, points: np.ndarray, tree2: cKDTree, tight: float) -> float:
@@ -86,10 +95,9 @@ def confirmed(pc1: np.ndarray, flow: np.ndarray, pc2: np.ndarray, radius: float,
     neighbourhood in which a right flow lands none with a chance below ``miss``: ``(1 − s)^k < miss``, within
     [``least``, ``most``] (a fifth kept: 21 points; a twentieth: 64). With fewer points than k, all of them."""
     p1 = np.asarray(pc1, np.float64)
-    if len(p1) == 0 or len(pc2) == 0:
-        return np.zeros(len(p1), bool)
-    lands = np.isfinite(cKDTree(np.asarray(pc2, np.float64)).query(p1 + np.asarray(flow, np.float64),
-                                                                      distance_upper_bound=radius)[0])
+    lands = landed(p1 + np.asarray(flow, np.float64), pc2, radius)
+    if not lands.any():
+        return lands
     pool = lands if static is None or not np.any(static) else lands[np.asarray(static, bool)]
     share = float(pool.mean())
     k = most if share <= 0 else int(np.clip(np.ceil(np.log(miss) / np.log1p(-min(share, 1 - 1e-12))), least, most))

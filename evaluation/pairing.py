@@ -43,13 +43,13 @@ CHECKED_SCENES = 8  #: scenes read for the check, spread evenly over the split
 
 
 def landed_share(sample: SceneFlowSample) -> float:
-    """Share of frame 1's points that the stored flow carries to within :data:`EXACT_M` of a frame-2 point."""
-    from scipy.spatial import cKDTree
+    """Share of frame 1's points that the stored flow carries to within :data:`EXACT_M` of a frame-2 point
+    (:func:`evaluation.landing.landed`)."""
+    from evaluation.landing import landed
 
-    if sample.n1 == 0 or sample.n2 == 0:
+    if sample.n1 == 0:
         return 0.0
-    dist = cKDTree(sample.pc2).query(sample.pc1 + sample.flow, distance_upper_bound=EXACT_M)[0]
-    return float(np.isfinite(dist).mean())
+    return float(landed(sample.pc1 + sample.flow, sample.pc2, EXACT_M).mean())
 
 
 @dataclass(frozen=True)

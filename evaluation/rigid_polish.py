@@ -327,9 +327,9 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
             view = ViewExtent.of(p2) if cfg.score_in_view else None
             _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
     if cfg.pairs_exact and static.any():  # step 7: onto exact landings, where step 4's rigid flow still stands
-        kept = static & (np.abs(out - (target - p1)).max(axis=1) == 0)
+        unmoved = static & (np.abs(out - (target - p1)).max(axis=1) == 0)  # not moved since by steps 5 and 6
         T = register_on_landings(p1[static], p2, T, cfg.pairs_exact, tree2=tree2)[0]
-        out[kept] = (apply_transform(T, p1) - p1)[kept]
+        out[unmoved] = (apply_transform(T, p1) - p1)[unmoved]
     return out.astype(np.float32), T, static
 
 

@@ -61,4 +61,14 @@ def scene_pair(seed: int, n: int, transform: np.ndarray, noise: float = 0.002) -
 
 
 SMALL = motion(5.0, (0.1, 1.0, 0.05), (0.3, 0.05, 1.0))  # a typical frame-to-frame ego motion
+
+
+def thin_pairs(seed: int = 0, pool: int = 15000, n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+    """A point-pair split's scene as the protocols sample it: frame 1 ``n`` points of a ``pool``-point street, frame 2
+    ``n`` of the same street moved by SMALL, drawn independently — about ``n / pool`` (a fifth) of frame 1's points
+    keep their counterpart. No noise: a kept counterpart lies exactly where SMALL carries its point."""
+    rng = np.random.default_rng(seed)
+    scene = structured_scene(rng, pool)
+    moved = scene @ SMALL[:3, :3].T + SMALL[:3, 3]
+    return scene[rng.permutation(pool)[:n]], moved[rng.permutation(pool)[:n]]
 YAW30 = motion(30.0, (0.0, 1.0, 0.0), (0.5, 0.0, 1.5))  # a 30° misalignment

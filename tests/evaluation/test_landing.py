@@ -8,21 +8,11 @@ from scipy.spatial import cKDTree
 
 from evaluation.baselines.base import apply_transform, transform_error
 from evaluation.landing import confirmed, landings, register_on_landings
-from testkit.rigid_scene import SMALL, motion, structured_scene
-
-
-def _thin_pairs(seed: int = 0, pool: int = 15000, n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
-    """Frame 1: ``n`` of a ``pool``-point street; frame 2: ``n`` of the same pool moved by SMALL, drawn
-    independently (as the protocols sample a point-pair split): about n / pool = 20 % of frame 1's points keep
-    their counterpart."""
-    rng = np.random.default_rng(seed)
-    scene = structured_scene(rng, pool)
-    moved = apply_transform(SMALL, scene)
-    return scene[rng.permutation(pool)[:n]], moved[rng.permutation(pool)[:n]]
+from testkit.rigid_scene import SMALL, motion, structured_scene, thin_pairs
 
 
 def test_a_motion_centimetres_off_is_taken_onto_the_exact_one():
-    pc1, pc2 = _thin_pairs()
+    pc1, pc2 = thin_pairs()
     off = motion(0.3, (0.0, 1.0, 0.0), (0.03, -0.01, 0.04)) @ SMALL  # 0.3° and 5 cm off
     tree2 = cKDTree(pc2)
     start = landings(off, pc1, tree2, 0.005)
@@ -41,7 +31,7 @@ def test_landings_count_each_point_by_how_near_it_lands():
 
 
 def test_never_lands_fewer_than_its_start_and_keeps_a_start_that_is_already_exact():
-    pc1, pc2 = _thin_pairs(1)
+    pc1, pc2 = thin_pairs(1)
     tree2 = cKDTree(pc2)
     T, n = register_on_landings(pc1, pc2, SMALL, 0.005, tree2=tree2)
     assert n == pytest.approx(landings(SMALL, pc1, tree2, 0.005))
@@ -54,7 +44,7 @@ def test_never_lands_fewer_than_its_start_and_keeps_a_start_that_is_already_exac
 
 
 def test_too_few_points_return_the_start():
-    pc1, pc2 = _thin_pairs()
+    pc1, pc2 = thin_pairs()
     T, n = register_on_landings(pc1[:4], pc2, SMALL, 0.005)
     np.testing.assert_array_equal(T, SMALL)
     assert n == landings(SMALL, pc1[:4], cKDTree(pc2), 0.005)
@@ -65,7 +55,7 @@ def test_confirmed_where_the_flow_lands_neighbours_and_mostly_not_on_a_mover_lef
     the counterparts kept, so the neighbourhood ((1 − s)^k < 1 %) is about 21 points. The rest is confirmed; of the
     car only the points whose neighbourhood reaches the road under it or a chance landing; an empty frame 2
     confirms nothing."""
-    pc1, pc2 = _thin_pairs(3)
+    pc1, pc2 = thin_pairs(3)
     right = apply_transform(SMALL, pc1) - pc1
     car = (np.abs(pc1[:, 0] + 3) < 1.0) & (np.abs(pc1[:, 2] - 8) < 2.1) & (pc1[:, 1] < 1.59)  # the box at (-3, ·, 8)
     flow = right + car[:, None] * np.array([0.0, 0.0, 0.3])

@@ -384,13 +384,10 @@ def test_on_thinly_sampled_point_pairs_the_motion_is_refitted_onto_exact_landing
     centimetres off); with step 7 the motion, and so every static point's flow, is exact."""
     from dataclasses import replace
 
-    from testkit.rigid_scene import structured_scene
+    from testkit.rigid_scene import thin_pairs
 
     _drifting_icp(monkeypatch, 0.03)
-    rng = np.random.default_rng(4)
-    street = structured_scene(rng, 15000)
-    pc1 = street[rng.permutation(len(street))[:3000]]
-    pc2 = apply_transform(SMALL, street)[rng.permutation(len(street))[:3000]]
+    pc1, pc2 = thin_pairs(4)
     off = motion(0.1, (0.0, 1.0, 0.0), (0.01, 0.0, 0.02)) @ SMALL
     method = (apply_transform(off, pc1) - pc1).astype(np.float32)
     alone = dict(objects=False, rigid_objects=False, ego_check=False)
