@@ -5,8 +5,8 @@ traffic), which also built the training world, so a net could do well on them by
 This tool shares none of its code: a street is a set of oriented boxes — façade segments with gaps and setbacks on
 both sides, poles, trees (a trunk and a crown), parked cars along the kerbs, one to four moving cars driving with
 the camera, towards it or across the street — and each frame is ray-cast from the sensor with a 64-beam pattern
-(−24.9° … +2° elevation, 0.2° azimuth steps over ±``half_fov`` degrees, each beam's elevation jittered per scan),
-range below ``max_range``. The ground is not cast (the clouds are ground-removed, as the community's KITTI
+(−24.9° … +2° elevation, 0.2° azimuth steps over ±``half_fov`` degrees, each beam's elevation jittered per
+scan), range below ``max_range``. The ground is not cast (the clouds are ground-removed, as the community's KITTI
 splits are). The camera drives 0–1.6 m per frame and turns by a few degrees; the boxes' own motions are drawn per
 scene. The truth is exact: a frame-1 hit moves with the box it hit.
 
@@ -119,7 +119,8 @@ def street(rng: np.random.Generator) -> tuple[list[Box], np.ndarray, np.ndarray]
         kind = rng.choice(["with", "oncoming", "crossing"], p=[0.4, 0.4, 0.2])
         x = rng.uniform(6.0, 32.0)
         if kind == "crossing":
-            y, heading, speed = rng.uniform(-width + 2, width - 2), np.pi / 2 + rng.normal(0, 0.1), rng.uniform(0.3, 1.2)
+            y = rng.uniform(-width + 2, width - 2)
+            heading, speed = np.pi / 2 + rng.normal(0, 0.1), rng.uniform(0.3, 1.2)
             speed *= rng.choice([-1.0, 1.0])
         else:
             y = rng.uniform(1.0, 2.5) * (1.0 if kind == "oncoming" else -1.0)

@@ -88,12 +88,16 @@ usable around any method, combines the two:
    ``static_scale_min`` from the first fit's) and rises no more than ``object_search_rise``; the margin
    against the median motion is unchanged (docs/learned-flow.md, twenty-seventh round).
 7. (``pairs_exact``, splits whose frame 2 holds frame 1's own points) the points that still carry step 4's rigid
-   flow take that of the motion refitted onto exact landings (:func:`evaluation.landing.register_on_landings`, from
-   ``T``, on step 4's static points): those whose counterpart the sampling kept land on it exactly under the right
-   motion, so least squares on the pairs within a shrinking radius, keeping the motion that lands the most of them
-   within ``pairs_exact`` metres, takes a motion centimetres off onto the exact one. Last, so that steps 5 and 6 see
-   the registration they were tuned with: started from the exact motion the object fits of step 6 lost the cars
-   driving with the camera on the synthetic LiDAR pairs (docs/learned-flow.md, forty-fifth round).
+   flow take that of the motion refitted onto exact landings (:func:`evaluation.landing.register_on_landings`, on
+   step 4's static points): those whose counterpart the sampling kept land on it exactly under the right motion, so
+   least squares on the pairs within a shrinking radius, keeping the motion that lands the most of them within
+   ``pairs_exact`` metres, takes a motion centimetres off onto the exact one. Last, so that steps 5 and 6 see the
+   registration they were tuned with: started from the exact motion the object fits of step 6 lost the cars driving
+   with the camera on the synthetic LiDAR pairs (docs/learned-flow.md, forty-fifth round). The refit starts from
+   ``T`` and from ``T₀`` (the method's motion, or step 1b's), and the one that lands the most wins (``T``'s on a
+   tie): where few surfaces face up or down (ground-removed clouds of walls and poles) the point-to-plane
+   registration can slide vertically by more than the refit's widest pairs without leaving frame 2's surfaces,
+   which neither step 3b nor 3c sees, while the landings do (docs/learned-flow.md, forty-sixth round).
 
 No learning and no gradient steps: a bounded number of closed-form (Gauss–Newton / Kabsch) steps, with
 no labels, pose or calibration. Without a good start it is no better than ICP: started from zero flow
@@ -196,8 +200,9 @@ class RigidPolishConfig:
         whose movers carry a vertical error starts the fit there and the fit settles a ring off (docs/learned-flow.md,
         forty-second round). false = the method's whole median departure (before that round).
     pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 7: the registered motion
-        is refitted to step 4's static points that land on frame-2 points, keeping the motion that lands the most of
-        them within this distance, and the points that kept step 4's rigid flow take the refitted one
+        (and ``T₀``, step 1's or 1b's) is refitted to step 4's static points that land on frame-2 points, keeping the
+        motion that lands the most of them within this distance, and the points that kept step 4's rigid flow take the
+        refitted one
         (:func:`evaluation.landing.register_on_landings`). A few millimetres: the split's own rounding is far below
         it, a motion a centimetre off lands almost none. 0 = off (re-scans: the default)."""
 
@@ -328,7 +333,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
             _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
     if cfg.pairs_exact and static.any():  # step 7: onto exact landings, where step 4's rigid flow still stands
         unmoved = static & (np.abs(out - (target - p1)).max(axis=1) == 0)  # not moved since by steps 5 and 6
-        T = register_on_landings(p1[static], p2, T, cfg.pairs_exact, tree2=tree2)[0]
+        fits = [register_on_landings(p1[static], p2, start, cfg.pairs_exact, tree2=tree2) for start in (T, init)]
+        T = max(fits, key=lambda fit: fit[1])[0]  # the first of equals: the registered motion
         out[unmoved] = (apply_transform(T, p1) - p1)[unmoved]
     return out.astype(np.float32), T, static
 
