@@ -333,7 +333,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
             _rigid_objects(p1, p2, out, T, owner, dist < cfg.static_scale_min, view, cfg)
     if cfg.pairs_exact and static.any():  # step 7: onto exact landings, where step 4's rigid flow still stands
         unmoved = static & (np.abs(out - (target - p1)).max(axis=1) == 0)  # not moved since by steps 5 and 6
-        fits = [register_on_landings(p1[static], p2, start, cfg.pairs_exact, tree2=tree2) for start in (T, init)]
+        starts = (T,) if np.array_equal(T, init) else (T, init)  # step 3c may have kept T₀: one refit then
+        fits = [register_on_landings(p1[static], p2, start, cfg.pairs_exact, tree2=tree2) for start in starts]
         T = max(fits, key=lambda fit: fit[1])[0]  # the first of equals: the registered motion
         out[unmoved] = (apply_transform(T, p1) - p1)[unmoved]
     return out.astype(np.float32), T, static

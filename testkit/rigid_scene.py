@@ -61,6 +61,7 @@ def scene_pair(seed: int, n: int, transform: np.ndarray, noise: float = 0.002) -
 
 
 SMALL = motion(5.0, (0.1, 1.0, 0.05), (0.3, 0.05, 1.0))  # a typical frame-to-frame ego motion
+YAW30 = motion(30.0, (0.0, 1.0, 0.0), (0.5, 0.0, 1.5))  # a 30° misalignment
 
 
 def thin_pairs(seed: int = 0, pool: int = 15000, n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
@@ -71,4 +72,3 @@ def thin_pairs(seed: int = 0, pool: int = 15000, n: int = 3000) -> tuple[np.ndar
     scene = structured_scene(rng, pool)
     moved = scene @ SMALL[:3, :3].T + SMALL[:3, 3]
     return scene[rng.permutation(pool)[:n]], moved[rng.permutation(pool)[:n]]
-YAW30 = motion(30.0, (0.0, 1.0, 0.0), (0.5, 0.0, 1.5))  # a 30° misalignment
