@@ -78,7 +78,8 @@ passed as :class:`evaluation.methods.NetMethod`'s keyword of that name; each one
 
 POLISH_OFF = {"rigid_objects": "no object step", "object_search": "no object search",
               "score_in_view": "all points scored", "ego_check": "no ego check",
-              "object_whole_extent": "extent rule alone", "level_starts": "whole departures"}
+              "object_whole_extent": "extent rule alone", "level_starts": "whole departures",
+              "hold_vertical": "six-degree registration"}
 """The rigid polish's switches that ``run`` can turn off, and what the row's name then says."""
 
 POLISH_HELP = {
@@ -106,6 +107,12 @@ POLISH_HELP = {
                     "departure from the camera's motion along the ground, its vertical part dropped (a re-scan's "
                     "rings put a fit started a beam's spacing off on the wrong ring); off = the whole departure, "
                     "the row named '<net> + rigid polish (whole departures)'",
+    "hold_vertical": "the rigid polish's registration (RigidPolishConfig.hold_vertical) fits the camera's motion in "
+                     "the ground plane alone (its turn about the vertical axis, its translation along x and z) and "
+                     "keeps the net's height, pitch and roll where the start's pairs hold some direction weakly "
+                     "(with the ground removed few surfaces face up or down, and the wall normals' small vertical "
+                     "parts slid the registration vertically); off = all six degrees of freedom, the row named "
+                     "'<net> + rigid polish (six-degree registration)'",
 }
 """Each of those switches' ``--help`` text."""
 

@@ -28,7 +28,13 @@ usable around any method, combines the two:
    ``max(static_scale_min, mad_factor · 1.4826 · median residual)``): the method's own guess of what is
    static;
 3. registers them onto pc2 by point-to-plane ICP with Cauchy weights, started at ``T₀``
-   (:func:`evaluation.baselines.icp.icp`, ``kernel="cauchy"``, ``max_distance`` as the pair limit);
+   (:func:`evaluation.baselines.icp.icp`, ``kernel="cauchy"``, ``max_distance`` as the pair limit); where the
+   start's pairs hold some direction weakly (``hold_vertical``) it fits the motion in the ground plane alone (the
+   turn about camera y and the translation along x and z) and keeps ``T₀``'s height, pitch and roll: with the
+   ground removed few surfaces face up or down, the vertical is then set by the small, wrongly estimated vertical
+   parts of wall normals, and the six-degree registration slid vertically (up to 0.6 m) from motions the method
+   had right to a centimetre, a slide that leaves every point on frame 2's surfaces, so no later check sees it
+   (docs/learned-flow.md, forty-seventh round);
 3b. (``ego_check``) keeps step 1b's motion instead when the registered one explains less of the scene — its
    share (as in step 1b) below ``(1 − ego_check_margin)`` times step 1b's: on a street whose walls run along
    the camera's path, the point-to-plane pairs hardly hold the motion along it, and a registration can slide
@@ -199,6 +205,14 @@ class RigidPolishConfig:
         (0.43° for a 64-beam sensor such as KITTI's: 0.24 m at 32 m) within a point-to-point fit's reach: a method
         whose movers carry a vertical error starts the fit there and the fit settles a ring off (docs/learned-flow.md,
         forty-second round). false = the method's whole median departure (before that round).
+    hold_vertical: step 3's registration fits the motion in the ground plane alone (the turn about camera y and
+        the translation along x and z) and keeps ``T₀``'s height, pitch and roll when its start's pairs hold their
+        least held direction by less than this (:class:`evaluation.baselines.icp.ICPConfig` ``hold_vertical``:
+        the smallest eigenvalue of the normal equations per pair, 1 = every normal along it). 0.03 lies between
+        the synthetic LiDAR worlds' and box streets' scenes (0.0004–0.027) and the real KITTI scans' (0.065–0.096):
+        a direction in which the surfaces' normals have an RMS part of less than 0.17 (10°), which PCA normals over
+        a LiDAR's rings do not resolve. 0 = all six degrees of freedom (before the forty-seventh round); 0 for
+        point pairs (step 7 reads the vertical from exact landings; the hold was measured on re-scans only).
     pairs_exact: metres; for a split whose frame 2 holds frame 1's own points moved, step 7: the registered motion
         (and ``T₀``, step 1's or 1b's) is refitted to step 4's static points that land on frame-2 points, keeping the
         motion that lands the most of them within this distance, and the points that kept step 4's rigid flow take the
@@ -236,6 +250,7 @@ class RigidPolishConfig:
     ego_check_voxel: float = 1.0
     pairs_check: float = 0.0
     level_starts: bool = True
+    hold_vertical: float = 0.03
     pairs_exact: float = 0.0
 
     @classmethod
@@ -244,10 +259,10 @@ class RigidPolishConfig:
         re-scan) the defaults; ``"points"`` (frame 1's own points moved) adds step 3c with ``pairs_check`` 0.1 m
         — the nearest distance of a point whose counterpart frame 2 holds is its motion's error, and 0.1 m
         keeps a point whose counterpart was not sampled from outweighing the centimetres it compares — and step 7
-        with ``pairs_exact`` 5 mm."""
+        with ``pairs_exact`` 5 mm, without ``hold_vertical`` (step 7 reads the vertical from exact landings)."""
         if pairing not in PAIRINGS:
             raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
-        return cls(pairs_check=0.1, pairs_exact=0.005) if pairing == "points" else cls()
+        return cls(pairs_check=0.1, pairs_exact=0.005, hold_vertical=0.0) if pairing == "points" else cls()
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.fit_iterations < 1 or self.cluster_iterations < 1 or self.min_points < 6:
@@ -255,9 +270,9 @@ class RigidPolishConfig:
         if not (self.cluster_radius > 0 and self.cluster_min_points >= 3 and 0 <= self.cluster_min_fitness < 1):
             raise ValueError("need cluster_radius > 0, cluster_min_points >= 3 and 0 <= cluster_min_fitness < 1")
         if (self.ego_check_margin < 0 or self.ego_check_points < 0 or not self.ego_check_voxel >= 0
-                or not self.pairs_check >= 0 or not self.pairs_exact >= 0):
+                or not self.pairs_check >= 0 or not self.pairs_exact >= 0 or not self.hold_vertical >= 0):
             raise ValueError("need ego_check_margin >= 0, ego_check_points >= 0, ego_check_voxel >= 0, "
-                             "pairs_check >= 0 and pairs_exact >= 0")
+                             "pairs_check >= 0, pairs_exact >= 0 and hold_vertical >= 0")
         if not (self.object_search >= 0 and self.object_search_peaks >= 1 and self.object_search_rise >= 0
                 and self.object_search_min_points >= 0):
             raise ValueError("need object_search >= 0, object_search_peaks >= 1, object_search_rise >= 0 and "
@@ -310,7 +325,8 @@ def polish_rigid(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray,
     if agree.sum() < cfg.min_points or len(p2) < 6:
         return f.astype(np.float32), init, np.zeros(len(p1), bool)
     icp_cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=cfg.max_distance,
-                        max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min)
+                        max_iterations=cfg.iterations, kernel="cauchy", kernel_scale_min=cfg.kernel_scale_min,
+                        hold_vertical=cfg.hold_vertical)
     T = icp(p1[agree], p2, icp_cfg, init=init).transform
     if checked is not None and (_explained_share(p1, weights, tree2, T, cfg.static_scale_min)
                                 < (1 - cfg.ego_check_margin) * checked[1]):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,7 @@ from evaluation.baselines import (
 )
 from evaluation.baselines.base import kabsch, rotation_from_vector, transform_error
 from evaluation.baselines.fpfh import FEATURE_DIM, pair_features, point_spacing
+from evaluation.baselines.icp import weakest_hold
 from evaluation.baselines.normals import estimate_normals
 from evaluation.methods import StaticPoseMethod
 from core.geometry import static_flow
@@ -128,6 +131,57 @@ def test_two_way_icp_step_also_pairs_each_near_target_point_with_its_nearest_sou
     assert (~np.isin(np.flatnonzero(back), i_fwd[fwd])).sum() > 10  # target points only the reverse pairs reach
     with pytest.raises(ValueError, match="two_way"):
         ICPConfig(method="point_to_plane", two_way=True)
+
+
+def test_icp_holding_the_vertical_moves_the_points_in_the_ground_plane_only() -> None:
+    """``hold_vertical``: every increment turns about camera y and shifts along x and z, so each point keeps the
+    height the start gave it (the start's height, pitch and roll stay), while the yaw and the horizontal
+    translation are still registered: started 1.5° and 0.3 m off in the ground plane (and 4 cm too high), the
+    points land within a few millimetres of the truth along x and z and exactly 4 cm off along y."""
+    truth = motion(1.0, (0.1, 1.0, 0.05), (0.2, 0.03, 0.9))
+    pc1, pc2 = scene_pair(5, 3000, truth)
+    start = motion(1.5, (0.0, 1.0, 0.0), (0.25, 0.0, -0.15)) @ truth
+    start[1, 3] += 0.04
+    cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=1.0, kernel="cauchy", hold_vertical=2.0)
+    held = icp(pc1, pc2, cfg, init=start).transform
+    moved, at_start, true = (pc1 @ T[:3, :3].T + T[:3, 3] for T in (held, start, truth))
+    np.testing.assert_allclose(moved[:, 1], at_start[:, 1], atol=1e-9)  # heights never change
+    assert np.abs(at_start - true)[:, [0, 2]].mean() > 0.1  # the start was far off in the ground plane
+    assert np.abs(moved - true)[:, [0, 2]].mean() < 0.005
+    np.testing.assert_allclose(np.mean(moved[:, 1] - true[:, 1]), 0.04, atol=0.005)
+    free = icp(pc1, pc2, dataclasses.replace(cfg, hold_vertical=0.0), init=start).transform
+    assert transform_error(free, truth)[1] < 0.01  # this street has a road: six degrees find the height too
+    with pytest.raises(ValueError, match="hold_vertical"):
+        ICPConfig(method="point_to_point", hold_vertical=1.0)
+
+
+def test_icp_holds_the_vertical_only_where_the_start_s_pairs_hold_a_direction_weakly() -> None:
+    """The gate: the street with a road holds every direction well (its weakest eigenvalue per pair is far
+    above 0.03), so ``hold_vertical`` 0.03 registers all six degrees as 0 does; the same street without its
+    road and with walls only has a near-zero vertical and is held."""
+    from scipy.spatial import cKDTree
+
+    truth = motion(1.0, (0.1, 1.0, 0.05), (0.2, 0.03, 0.9))
+    pc1, pc2 = scene_pair(5, 3000, truth)
+    start = truth.copy()
+    start[1, 3] += 0.04
+    idx = cKDTree(pc2).query(pc1 @ start[:3, :3].T + start[:3, 3])[1]
+    weakest = weakest_hold(pc1 @ start[:3, :3].T + start[:3, 3], pc2[idx], estimate_normals(pc2, 20)[idx])
+    assert weakest > 0.03
+    cfg = ICPConfig(method="point_to_plane", max_correspondence_distance=1.0, kernel="cauchy")
+    gated = icp(pc1, pc2, dataclasses.replace(cfg, hold_vertical=0.03), init=start).transform
+    np.testing.assert_allclose(gated, icp(pc1, pc2, cfg, init=start).transform, atol=1e-12)
+    assert transform_error(gated, truth)[1] < 0.01
+    walls = np.abs(estimate_normals(pc1, 20)[:, 1]) < 0.5  # drop the road and the boxes' tops
+    walls2 = np.abs(estimate_normals(pc2, 20)[:, 1]) < 0.5
+    off = motion(1.0, (0.0, 1.0, 0.0), (0.15, 0.0, -0.1)) @ start  # also off in the ground plane
+    src = pc1[walls] @ off[:3, :3].T + off[:3, 3]
+    near = cKDTree(pc2[walls2]).query(src)[1]
+    assert weakest_hold(src, pc2[walls2][near], estimate_normals(pc2[walls2], 20)[near]) < 0.03
+    held = icp(pc1[walls], pc2[walls2], dataclasses.replace(cfg, hold_vertical=0.03), init=off).transform
+    moved, at_start, true = (pc1[walls] @ T[:3, :3].T + T[:3, 3] for T in (held, off, truth))
+    np.testing.assert_allclose(moved[:, 1], at_start[:, 1], atol=1e-9)  # held: heights as the start put them
+    assert np.abs(moved - true)[:, [0, 2]].mean() < 0.01 < np.abs(at_start - true)[:, [0, 2]].mean()
 
 
 def test_icp_config_rejects_unknown_method() -> None:

@@ -367,6 +367,10 @@ def test_wrappers_stack_view_prune_then_rigid_polish_then_refine() -> None:
     whole = _stacked(net, ["rigid-polish"], ("level_starts",))[1]
     assert not whole.config.level_starts and rows[2].config.level_starts
     assert whole.name == "zero + rigid polish (whole departures)"
+    # --hold-vertical off: the registration fits all six degrees of freedom (hold_vertical 0), named so
+    six = _stacked(net, ["rigid-polish"], ("hold_vertical",))[1]
+    assert six.config.hold_vertical == 0.0 and rows[2].config.hold_vertical == 0.03
+    assert six.name == "zero + rigid polish (six-degree registration)"
 
 
 def test_a_net_trained_without_the_turn_scan_can_be_scored_with_it(world: Path, tmp_path: Path) -> None:
