@@ -209,7 +209,7 @@ class RigidPolishConfig:
         the translation along x and z) and keeps ``T₀``'s height, pitch and roll when its start's pairs hold their
         least held direction by less than this (:class:`evaluation.baselines.icp.ICPConfig` ``hold_vertical``:
         the smallest eigenvalue of the normal equations per pair, 1 = every normal along it). 0.03 lies between
-        the synthetic LiDAR worlds' and box streets' scenes (0.0004–0.027) and the real KITTI scans' (0.065–0.096):
+        the synthetic LiDAR worlds' and box streets' scenes (0–0.027) and the real KITTI scans' (0.065–0.096):
         a direction in which the surfaces' normals have an RMS part of less than 0.17 (10°), which PCA normals over
         a LiDAR's rings do not resolve. 0 = all six degrees of freedom (before the forty-seventh round); 0 for
         point pairs (step 7 reads the vertical from exact landings; the hold was measured on re-scans only).

@@ -29,7 +29,7 @@ rotation scaled by their spread, so that 1 means every normal lies along that di
 small vertical parts of wall normals, which PCA over a LiDAR's rings gets wrong by more than they are, and a
 six-degree registration started at the true motion slid up to 0.17 m vertically (a shift with a pitch) on ray-cast
 streets of boxes, and up to 0.6 m on the synthetic LiDAR worlds from a method's motion; holding the height alone
-let the pitch slide instead. The smallest eigenvalue was 0.0004–0.027 per scene on those worlds and 0.065–0.096 on
+let the pitch slide instead. The smallest eigenvalue was 0–0.027 per scene on those worlds and 0.065–0.096 on
 the real KITTI scans (docs/learned-flow.md, forty-seventh round).
 
 It stops when the change of both fitness (inlier fraction) and inlier RMSE falls below ``tolerance``
