@@ -115,17 +115,23 @@ def _cauchy_weights(r: np.ndarray, scale_min: float) -> np.ndarray:
     return 1.0 / (1.0 + (r / s) ** 2)
 
 
+def _plane_jacobian(src: np.ndarray, normals: np.ndarray, centre: np.ndarray, spread: float = 1.0) -> np.ndarray:
+    """(N, 6) derivative of the point-to-plane residuals ``(p − q) · n`` of the pairs ``src`` with the target
+    ``normals`` by the twist ``(ω, t')`` about ``centre`` (``x → R (x − c) + c + t'``); the rotation's columns
+    divided by ``spread`` (metres) so that both halves are in metres."""
+    return np.hstack([np.cross(src - centre, normals) / spread, normals])
+
+
 def _point_to_plane_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray,
-                         scale_min: float | None = None, hold_vertical: bool = False) -> np.ndarray | None:
+                         scale_min: float | None = None, ground_plane: bool = False) -> np.ndarray | None:
     """Increment (4×4) minimising the linearised point-to-plane error (Cauchy-weighted when ``scale_min``
-    is given), None if degenerate. With ``hold_vertical`` the twist is taken about the weighted centroid ``c``
-    of ``src`` (``ω``, ``t'``: ``x → R (x − c) + c + t'``) and only ``ω_y``, ``t'_x`` and ``t'_z`` are fitted."""
+    is given), None if degenerate. With ``ground_plane`` the twist is taken about the weighted centroid ``c``
+    of ``src`` and only ``ω_y``, ``t'_x`` and ``t'_z`` are fitted (``hold_vertical`` in the module docstring)."""
     r = np.einsum("ni,ni->n", src - dst, normals)
     w = np.ones_like(r) if scale_min is None else _cauchy_weights(r, scale_min)
-    c = (w[:, None] * src).sum(0) / w.sum() if hold_vertical else np.zeros(3)
-    jac = np.hstack([np.cross(src - c, normals), normals])  # d r / d (ω, t'), t' the centroid's motion
-    cols = [1, 3, 5] if hold_vertical else [0, 1, 2, 3, 4, 5]  # (ω_y, t'_x, t'_z): the ground plane's motion
-    jac = jac[:, cols]
+    c = (w[:, None] * src).sum(0) / w.sum() if ground_plane else np.zeros(3)
+    cols = [1, 3, 5] if ground_plane else [0, 1, 2, 3, 4, 5]  # (ω_y, t'_x, t'_z): the ground plane's motion
+    jac = _plane_jacobian(src, normals, c)[:, cols]
     jtj = (jac * w[:, None]).T @ jac
     jtr = (jac * w[:, None]).T @ r
     if np.linalg.matrix_rank(jtj) < len(cols):
@@ -144,7 +150,7 @@ def weakest_hold(src: np.ndarray, dst: np.ndarray, normals: np.ndarray) -> float
     about a metre. 1 when every normal lies along the least held direction, 0 when none has a part along it."""
     centre = src.mean(0)
     spread = max(float(np.sqrt(((src - centre) ** 2).sum(1).mean())), 1e-9)
-    jac = np.hstack([np.cross(src - centre, normals) / spread, normals])
+    jac = _plane_jacobian(src, normals, centre, spread)
     return float(np.linalg.eigvalsh(jac.T @ jac / len(jac))[0])
 
 
