@@ -9,12 +9,19 @@ on the same points. Used for docs/learned-flow.md (twentieth round)::
 
     python -m benchmarks.anchor_parts --checkpoint runs/pre-w0-s0/step_000500.pt \\
         --split own=w0/world/sceneflow/flownet3d --split realr=w/real_kitti_rescan --parts none,rv,rvhe,all
+
+``--leave-one-out`` scores each net instead as trained and with each inference-only switch it has on
+(:data:`LEAVE_ONE_OUT`) turned off alone, every other one as trained: what each switch adds to the rest
+(docs/learned-flow.md, forty-eighth round)::
+
+    python -m benchmarks.anchor_parts --leave-one-out --checkpoint cache/demo/flow_run_gt/latest.pt \\
+        --split boxes=w/boxes [--protocol hplflownet --n-points 8192]
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
+from dataclasses import fields, replace
 
 from benchmarks.named_folders import named_folder
 from core.errors import ConfigError, run_cli
@@ -72,6 +79,46 @@ neighbourhood off frame 2's sampled surface (``eval_evidence_surface`` 1.5: the 
 ``none`` the net without any of them."""
 
 
+LEAVE_ONE_OUT: tuple[str, ...] = (
+    "eval_anchor", "rigid_vote_dense", "rigid_vote_far", "eval_gate_k", "rigid_vote_yaw_deg", "eval_evidence_dense",
+    "rigid_vote_gap_m", "rigid_vote_forward", "rigid_vote_density_m", "eval_own_departure", "eval_view_hold",
+    "eval_level_departure", "eval_evidence_surface", "eval_neighbourhood_scale")
+"""The inference-only switches of :class:`~training.model.halflownet_config.HALFlowConfig` that ``--leave-one-out``
+turns off one at a time (to the field's default, the paper's form; ``eval_anchor`` off drops every switch that acts
+only through it, :meth:`~training.model.halflownet_config.HALFlowConfig.without_anchor`)."""
+
+
+def without_switch(method, field: str):
+    """``method`` (a :class:`evaluation.methods.NetMethod`) with the inference-only ``field`` turned off and every
+    other setting as trained, renamed ``<name> [-<field>]``; None when the net has it off already."""
+    if field not in LEAVE_ONE_OUT:
+        raise ConfigError(f"unknown switch {field!r} (choose from {', '.join(LEAVE_ONE_OUT)})")
+    config = method.net.config
+    default = {f.name: f.default for f in fields(config)}[field]
+    if getattr(config, field) == default:
+        return None
+    try:
+        off = config.without_anchor() if field == "eval_anchor" else replace(config, **{field: default})
+    except ConfigError as e:
+        raise ConfigError(f"{method.checkpoint}: cannot turn {field} off: {e}") from None
+    method.config = method.net.config = off
+    method.name = f"{method.name} [-{field}]"
+    return method
+
+
+def leave_one_out(checkpoint: str) -> list:
+    """The net of ``checkpoint`` as trained (``<checkpoint> [as trained]``) and once per switch of
+    :data:`LEAVE_ONE_OUT` it has on, with that switch off (:func:`without_switch`)."""
+    from evaluation.methods import NetMethod
+
+    methods = [NetMethod(checkpoint, device="cpu", name=f"{checkpoint} [as trained]")]
+    for field in LEAVE_ONE_OUT:
+        m = without_switch(NetMethod(checkpoint, device="cpu", name=str(checkpoint)), field)
+        if m is not None:
+            methods.append(m)
+    return methods
+
+
 def with_parts(method, part: str):
     """``method`` (a :class:`evaluation.methods.NetMethod`) set to run with the switches of ``PARTS[part]``
     at inference (its own anchor off), renamed ``<name> [<part>]``."""
@@ -91,6 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", action="append", default=[], required=True, type=named_folder,
                    help="NAME=FOLDER of a scene-flow test split")
     p.add_argument("--parts", default="none,all", help=f"comma list of {', '.join(PARTS)}")
+    p.add_argument("--leave-one-out", action="store_true",
+                   help="instead of --parts: each net as trained and with each inference-only switch it has on turned "
+                        "off alone")
+    p.add_argument("--protocol", default="fps", help="the scoring protocol (evaluation.protocols; fps: the paper's)")
     p.add_argument("--n-points", type=int, default=2048, help="points sampled per cloud")
     p.add_argument("--n-score", type=int, default=512, help="scored farthest-point samples (the net's level 0)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
@@ -106,9 +157,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.threads:
             torch.set_num_threads(args.threads)
         parts = [t.strip() for t in args.parts.split(",") if t.strip()]
-        methods = [with_parts(NetMethod(c, device="cpu", name=str(c)), part) for c in args.checkpoint for part in parts]
+        if args.leave_one_out:
+            methods = [m for c in args.checkpoint for m in leave_one_out(c)]
+        else:
+            methods = [with_parts(NetMethod(c, device="cpu", name=str(c)), part) for c in args.checkpoint
+                       for part in parts]
         splits = {name: load_split(folder, "auto") for name, folder in args.split}
-        scores = score_splits(methods, splits, args.n_points, args.n_score)
+        scores = score_splits(methods, splits, args.n_points, args.n_score, protocol=args.protocol)
         print("| net [parts] | " + " | ".join(f"{s} (overall / static / moving)" for s in splits) + " |")
         print("|---|" + "---|" * len(splits))
         for m in methods:

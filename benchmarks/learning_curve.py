@@ -70,11 +70,13 @@ def demo_train_config(cache: str, run_dir: str, n_points: int = 2048, width_scal
     return preset(cache, run_dir, 1, n_points, width_scale, seed, {**paper, **(overrides or {})})
 
 
-def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int, seeds=(0,)) -> dict:
-    """``{split: {method: summary row}}`` under the paper protocol at the net's point counts."""
+def score_splits(methods, splits: dict[str, object], n_points: int, n_score: int, seeds=(0,),
+                 protocol: str = "fps") -> dict:
+    """``{split: {method: summary row}}`` under ``protocol`` (the paper's, ``fps``, unless told) at the net's point
+    counts."""
     from evaluation.protocols import ProtocolConfig, run_protocol, summary_rows
 
-    cfg = ProtocolConfig(protocol="fps", n_points=n_points, n_score=n_score, seeds=tuple(seeds), warmup=False)
+    cfg = ProtocolConfig(protocol=protocol, n_points=n_points, n_score=n_score, seeds=tuple(seeds), warmup=False)
     out = {}
     for name, split in splits.items():
         rows = summary_rows(run_protocol(split, methods, cfg, progress=False))

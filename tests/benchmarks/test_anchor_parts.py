@@ -89,3 +89,45 @@ def test_the_presets_anchor_is_alldfkxgfdovls_and_its_net_takes_every_part(tmp_p
     flows = {p: with_parts(NetMethod(path, device="cpu"), p)(pc1, pc2) for p in PARTS}
     np.testing.assert_array_equal(flows[anchor], NetMethod(path, device="cpu")(pc1, pc2))
     np.testing.assert_array_equal(flows["none"], NetMethod(path, device="cpu", eval_anchor=False)(pc1, pc2))
+
+
+def test_leave_one_out_turns_each_switch_off_alone(tmp_path):
+    from dataclasses import fields
+
+    from benchmarks.anchor_parts import LEAVE_ONE_OUT, leave_one_out, without_switch
+
+    path = tiny_flow_checkpoint(tmp_path / "net.pt", **ANCHORABLE, eval_anchor=True, eval_gate_k=8,
+                                rigid_vote_yaw_deg=6.0, eval_view_hold=True)
+    methods = leave_one_out(str(path))
+    trained = methods[0].net.config
+    assert methods[0].name.endswith("[as trained]")
+    # one row per switch the net has on, named for it, and nothing else changed
+    assert [m.name.split("[-")[1].rstrip("]") for m in methods[1:]] == ["eval_anchor", "eval_gate_k",
+                                                                       "rigid_vote_yaw_deg", "eval_view_hold"]
+    defaults = {f.name: f.default for f in fields(trained)}
+    for m in methods[2:]:
+        field = m.name.split("[-")[1].rstrip("]")
+        changed = {f.name for f in fields(trained) if getattr(m.net.config, f.name) != getattr(trained, f.name)}
+        assert changed == {field} and getattr(m.net.config, field) == defaults[field]
+    assert methods[1].net.config == trained.without_anchor()
+    rng = np.random.default_rng(0)
+    pc1 = structured_scene(rng, 300).astype(np.float32)
+    a = np.radians(3.0)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    pc2 = (pc1 @ R.T + [0.1, 0.0, 1.0]).astype(np.float32)
+    np.testing.assert_array_equal(methods[0](pc1, pc2), NetMethod(path, device="cpu")(pc1, pc2))
+    np.testing.assert_array_equal(methods[1](pc1, pc2), NetMethod(path, device="cpu", eval_anchor=False)(pc1, pc2))
+    np.testing.assert_array_equal(methods[3](pc1, pc2), NetMethod(path, device="cpu", turn_scan=0)(pc1, pc2))
+    assert without_switch(NetMethod(path, device="cpu"), "eval_level_departure") is None  # off already
+    with pytest.raises(ConfigError, match="unknown switch"):
+        without_switch(NetMethod(path, device="cpu"), "lr")
+    assert set(LEAVE_ONE_OUT) <= set(defaults)
+
+
+def test_leave_one_out_table_under_another_protocol(tmp_path, capsys):
+    path = tiny_flow_checkpoint(tmp_path / "net.pt", **ANCHORABLE, eval_anchor=True)
+    _split(tmp_path / "split")
+    assert main(["--checkpoint", str(path), "--split", f"s={tmp_path / 'split'}", "--leave-one-out",
+                 "--protocol", "full", "--n-points", "256"]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith(f"| {path}")]
+    assert [r.split("]")[0].split("[")[1] for r in rows] == ["as trained", "-eval_anchor"]
