@@ -35,13 +35,13 @@ _PRESET_STEPS: tuple[tuple[str, dict[str, object]], ...] = (
     ("d", {"rigid_vote_dense": True}), ("f", {"rigid_vote_far": True}), ("k", {"ego_gate_k": 16}),
     ("x", {"eval_evidence_dense": True}), ("g", {"rigid_vote_gap_m": 0.3}), ("f", {"rigid_vote_forward": True}),
     ("d", {"rigid_vote_density_m": 0.62}), ("o", {"eval_own_departure": True}), ("v", {"eval_view_hold": True}),
-    ("l", {"eval_level_departure": True}), ("s", {"eval_evidence_surface": 1.5}))
+    ("l", {"eval_level_departure": True}), ("s", {"eval_evidence_surface": 1.5}), ("t", {"rigid_vote_yaw_deg": 6.0}))
 """The demo preset's anchor built up one switch at a time from ``all``: each step's letter extends the part's name."""
 
 
 def _preset_chain() -> dict[str, dict[str, object]]:
     """``all`` (what ``eval_anchor`` turns on, the vote neither dense nor range-weighted) and each part that adds the
-    next of :data:`_PRESET_STEPS` to the one before: ``alld``, ``alldf``, … ``alldfkxgfdovls``."""
+    next of :data:`_PRESET_STEPS` to the one before: ``alld``, ``alldf``, … ``alldfkxgfdovlst``."""
     name, part = "all", {**ANCHOR_SWITCHES, "rigid_vote_dense": False, "rigid_vote_far": False}
     chain = {name: part}
     for letter, switch in _PRESET_STEPS:
@@ -76,6 +76,8 @@ held at the vote's motion unless they depart with their in-view neighbours (``ev
 ``alldfkxgfdovl`` that with each departure kept along the ground (``eval_level_departure``: the preset's since the
 forty-second round), ``alldfkxgfdovls`` that with a departure taken only where the camera's motion leaves the point's
 neighbourhood off frame 2's sampled surface (``eval_evidence_surface`` 1.5: the preset's since the forty-third round),
+``alldfkxgfdovlst`` that with the vote's turn scanned within ±6° (``rigid_vote_yaw_deg``: the preset's since the
+thirty-second round, a net setting the parts drop with the anchor): the demo preset's whole anchor,
 ``none`` the net without any of them."""
 
 

@@ -131,3 +131,28 @@ def test_leave_one_out_table_under_another_protocol(tmp_path, capsys):
                  "--protocol", "full", "--n-points", "256"]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith(f"| {path}")]
     assert [r.split("]")[0].split("[")[1] for r in rows] == ["as trained", "-eval_anchor"]
+
+
+def test_the_last_part_of_the_chain_is_the_demo_presets_anchor(tmp_path):
+    from benchmarks.anchor_parts import _preset_chain
+    from training.presets import demo_train_config
+
+    preset = demo_train_config("cache", "run").model
+    switches = {f: getattr(preset, f) for f in (
+        "eval_anchor", "rigid_vote_dense", "rigid_vote_far", "eval_gate_k", "rigid_vote_yaw_deg", "eval_evidence_dense",
+        "rigid_vote_gap_m", "rigid_vote_forward", "rigid_vote_density_m", "eval_own_departure", "eval_view_hold",
+        "eval_level_departure", "eval_evidence_surface")}
+    path = tiny_flow_checkpoint(tmp_path / "net.pt", **ANCHORABLE, **switches)
+    rng = np.random.default_rng(1)
+    pc1 = structured_scene(rng, 300).astype(np.float32)
+    a = np.radians(4.0)  # a turn the scan finds
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    pc2 = (pc1 @ R.T + [0.1, 0.0, 1.0]).astype(np.float32)
+    last = list(_preset_chain())[-1]
+    trained, parts = NetMethod(path, device="cpu"), with_parts(NetMethod(path, device="cpu"), last)
+    # the inference pass runs with the same switches (the part sets directly what eval_anchor turns on)
+    run_as_trained = trained.net.config.at_inference()
+    for field in [*switches, "rigid_vote", "ego_l0_hold", "ego_l0_hold_from", "ego_gate_evidence", "ego_gate_k"]:
+        if field not in ("eval_anchor", "eval_gate_k"):  # what they set, ego_gate_k and the rest, is compared
+            assert getattr(parts.net.config, field) == getattr(run_as_trained, field), field
+    np.testing.assert_array_equal(parts(pc1, pc2), trained(pc1, pc2))
