@@ -70,9 +70,9 @@ def test_the_table_has_a_row_per_net_and_part(tmp_path, capsys):
     (True, 0.3, True, 0.62, True, True, False, 0.0, "alldfkxgfdov"),
     (True, 0.3, True, 0.62, True, True, True, 0.0, "alldfkxgfdovl"),
     (True, 0.3, True, 0.62, True, True, True, 1.5, "alldfkxgfdovls")])
-def test_the_presets_anchor_is_alldfkxgfdovls_and_its_net_takes_every_part(tmp_path, dense, gap, forward, density,
-                                                                           own, view, level, surface, anchor):
-    """A net saved with the preset's anchor (dense, range-weighted vote chosen by its gap with forward starts and
+def test_each_part_of_the_chain_is_the_anchor_its_switches_make(tmp_path, dense, gap, forward, density, own, view,
+                                                                level, surface, anchor):
+    """A net saved with the preset's anchor but its turn scan (the chain's last part adds that: the test below) (dense, range-weighted vote chosen by its gap with forward starts and
     rounds weighed by density, the gate over 16 neighbours, the evidence read against frame 2's whole input, the
     departures measured from the net's own motion, the points leaving the view given their in-view neighbours'
     departure, the departures kept along the ground, a departure taken only off frame 2's surface; without the
