@@ -143,11 +143,11 @@ def _point_to_plane_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray,
     return step
 
 
-def weakest_hold(src: np.ndarray, dst: np.ndarray, normals: np.ndarray) -> float:
-    """The smallest eigenvalue of the point-to-plane normal equations per pair (``JᵀJ / N``) of the pairs
-    ``src`` → ``dst`` (N, 3) with the target ``normals`` (N, 3): the twist taken about the pairs' centroid, its
-    rotation scaled by their RMS distance from it, so that a unit motion along an eigenvector moves the points by
-    about a metre. 1 when every normal lies along the least held direction, 0 when none has a part along it."""
+def weakest_hold(src: np.ndarray, normals: np.ndarray) -> float:
+    """The smallest eigenvalue of the point-to-plane normal equations per pair (``JᵀJ / N``) of the pairs' source
+    points ``src`` (N, 3) with their targets' ``normals`` (N, 3) (the targets themselves do not enter): the twist
+    taken about the pairs' centroid, its rotation scaled by their RMS distance from it, so that a unit motion along
+    an eigenvector moves the points by about a metre. 1 when every normal lies along the least held direction, 0 when none has a part along it."""
     centre = src.mean(0)
     spread = max(float(np.sqrt(((src - centre) ** 2).sum(1).mean())), 1e-9)
     jac = _plane_jacobian(src, normals, centre, spread)
@@ -184,7 +184,7 @@ def icp(
 
     src, idx, inl, fitness, rmse = correspond(transform)
     hold = bool(cfg.hold_vertical and inl.sum() >= 6
-                and weakest_hold(src[inl], dst[idx[inl]], normals[idx[inl]]) < cfg.hold_vertical)
+                and weakest_hold(src[inl], normals[idx[inl]]) < cfg.hold_vertical)
     converged = False
     iterations = 0
     n_used = int(inl.sum())

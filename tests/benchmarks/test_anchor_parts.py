@@ -72,9 +72,9 @@ def test_the_table_has_a_row_per_net_and_part(tmp_path, capsys):
     (True, 0.3, True, 0.62, True, True, True, 1.5, "alldfkxgfdovls")])
 def test_each_part_of_the_chain_is_the_anchor_its_switches_make(tmp_path, dense, gap, forward, density, own, view,
                                                                 level, surface, anchor):
-    """A net saved with the preset's anchor but its turn scan (the chain's last part adds that: the test below) (dense, range-weighted vote chosen by its gap with forward starts and
-    rounds weighed by density, the gate over 16 neighbours, the evidence read against frame 2's whole input, the
-    departures measured from the net's own motion, the points leaving the view given their in-view neighbours'
+    """A net saved with the preset's anchor but its turn scan (the chain's last part adds that: the test below)
+    (dense, range-weighted vote chosen by its gap with forward starts and rounds weighed by density, the gate over
+    16 neighbours, the evidence read against frame 2's whole input, the departures measured from the net's own motion, the points leaving the view given their in-view neighbours'
     departure, the departures kept along the ground, a departure taken only off frame 2's surface; without the
     evidence and what follows it, the twenty-second round's): every part applies to it (its own inference options are
     dropped first), and ``alldfkxgfdovls`` (``alldfkxgfdovl``, ``alldfkxgfdov``, ``alldfkxgfdo``, ``alldfkxgfd``, ``alldfkxgf``, ``alldfkxg``, ``alldfkx``, ``alldfk``) is its
@@ -134,14 +134,11 @@ def test_leave_one_out_table_under_another_protocol(tmp_path, capsys):
 
 
 def test_the_last_part_of_the_chain_is_the_demo_presets_anchor(tmp_path):
-    from benchmarks.anchor_parts import _preset_chain
+    from benchmarks.anchor_parts import LEAVE_ONE_OUT, _preset_chain
     from training.presets import demo_train_config
 
     preset = demo_train_config("cache", "run").model
-    switches = {f: getattr(preset, f) for f in (
-        "eval_anchor", "rigid_vote_dense", "rigid_vote_far", "eval_gate_k", "rigid_vote_yaw_deg", "eval_evidence_dense",
-        "rigid_vote_gap_m", "rigid_vote_forward", "rigid_vote_density_m", "eval_own_departure", "eval_view_hold",
-        "eval_level_departure", "eval_evidence_surface")}
+    switches = {f: getattr(preset, f) for f in LEAVE_ONE_OUT}  # every inference-only switch, as the preset sets it
     path = tiny_flow_checkpoint(tmp_path / "net.pt", **ANCHORABLE, **switches)
     rng = np.random.default_rng(1)
     pc1 = structured_scene(rng, 300).astype(np.float32)
