@@ -139,8 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", action="append", default=[], required=True, help="monoflow-train checkpoint")
     p.add_argument("--split", action="append", default=[], required=True, type=named_folder,
                    help="NAME=FOLDER of a scene-flow test split")
-    p.add_argument("--parts", default="none,all", help=f"comma list of {', '.join(PARTS)}")
-    p.add_argument("--leave-one-out", action="store_true",
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--parts", default="none,all", help=f"comma list of {', '.join(PARTS)}")
+    which.add_argument("--leave-one-out", action="store_true",
                    help="instead of --parts: each net as trained and with each inference-only switch it has on turned "
                         "off alone")
     p.add_argument("--protocol", default="fps", help="the scoring protocol (evaluation.protocols; fps: the paper's)")

@@ -133,6 +133,13 @@ def test_leave_one_out_table_under_another_protocol(tmp_path, capsys):
     assert [r.split("]")[0].split("[")[1] for r in rows] == ["as trained", "-eval_anchor"]
 
 
+def test_parts_and_leave_one_out_are_one_choice(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--checkpoint", "net.pt", "--split", f"s={tmp_path}", "--leave-one-out", "--parts", "all"])
+    assert stop.value.code == 2
+    assert "not allowed with argument" in capsys.readouterr().err
+
+
 def test_the_last_part_of_the_chain_is_the_demo_presets_anchor(tmp_path):
     from benchmarks.anchor_parts import LEAVE_ONE_OUT, _preset_chain
     from training.presets import demo_train_config
