@@ -46,6 +46,16 @@ def test_lr_factor_can_count_its_period_in_epochs_of_the_training_pairs():
         lr_factor(1, cfg)
 
 
+def test_the_demo_presets_schedule_first_decays_after_the_demos_steps():
+    from training.presets import demo_train_config
+
+    cfg = demo_train_config("cache", "run")  # 500 steps of 4 pairs; the demo world's cache holds 216 pairs
+    assert cfg.steps == 500 and cfg.optim.batch_size == 4
+    assert lr_factor(cfg.steps, cfg, train_pairs=216) == 1.0  # the demo's net is trained at the constant lr
+    assert lr_factor(539, cfg, train_pairs=216) == 1.0 and lr_factor(540, cfg, train_pairs=216) == pytest.approx(0.7)
+    assert lr_factor(4 * cfg.steps, cfg, train_pairs=216) == pytest.approx(0.7**3)  # 4x: three decays
+
+
 def test_cosine_schedule_runs_from_lr_to_lr_min_over_the_run():
     cfg = _cfg_lr(schedule="cosine", lr=1e-3, lr_min=1e-4)
     cfg.steps = 1000
