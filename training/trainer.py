@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +81,29 @@ def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None, train
             raise ConfigError("optim.decay_every_epochs needs the number of training pairs")
         period = max(1, round(o.decay_every_epochs * train_pairs))
     return max(o.decay ** (step * o.batch_size // period), floor)
+
+
+SCHEDULE_OPTIONS = frozenset({"optim.schedule", "optim.decay", "optim.decay_every_samples", "optim.decay_every_epochs",
+                              "optim.lr_min"})
+"""Options that act only through :func:`lr_factor`: a resumed run may change them where the factor they give is the
+same at every step taken so far (:func:`schedule_agrees`)."""
+
+
+def schedule_agrees(saved: dict[str, Any], cfg: TrainConfig, step: int, total_steps: int, train_pairs: int) -> bool:
+    """Whether the lr schedule of ``saved`` (an ``asdict(TrainConfig)``) and of ``cfg`` give the same factor at every
+    step ``0 … step`` (the steps a checkpoint at ``step`` has taken, and the first one after it, whose lr the loaded
+    optimiser already holds), over ``cfg``'s run length and ``train_pairs``. Then the run so far is exactly the run
+    ``cfg`` would have trained, and resuming it under ``cfg`` continues that run (e.g. a step decay whose first decay
+    falls after the checkpoint)."""
+    fields = {k.split(".", 1)[1]: saved.get("optim", {}).get(k.split(".", 1)[1]) for k in SCHEDULE_OPTIONS}
+    if any(v is None for v in fields.values()):
+        return False
+    before = replace(cfg, optim=replace(cfg.optim, **fields))
+    try:
+        return all(lr_factor(s, before, total_steps, train_pairs) == lr_factor(s, cfg, total_steps, train_pairs)
+                   for s in range(step + 1))
+    except ConfigError:
+        return False
 
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
@@ -247,6 +270,9 @@ class Trainer:
         ckpt = checkpoints.load_checkpoint(path, kind="flow")
         try:
             changed = config_changes(ckpt["config"], asdict(self.cfg))
+            if changed and schedule_agrees(ckpt["config"], self.cfg, int(ckpt["step"]), self.steps,
+                                           len(self.train_idx)):
+                changed = [c for c in changed if c.split(" ", 1)[0] not in SCHEDULE_OPTIONS]
             if changed:
                 raise InputError(path, f"written by a run with other settings ({'; '.join(changed)}); "
                                        "resume with the same settings or use a new run_dir")

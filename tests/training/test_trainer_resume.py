@@ -92,3 +92,24 @@ def test_resume_with_other_settings_is_refused(tiny_cache, tmp_path):  # noqa: F
     assert trainer.step == 3
     trainer.fit()
     assert trainer.step == 5
+
+
+def test_a_schedule_that_agrees_so_far_may_change_on_resume(tiny_cache, tmp_path):  # noqa: F811
+    """A run trained at the constant lr, continued under a step decay whose first decay falls after its checkpoint
+    (the demo preset's change of the forty-ninth round): it resumes, and ends bit for bit as the run trained under the
+    decay from the start; a decay that would already have fired is refused, naming the option."""
+    def cfg(run, steps, **optim):
+        return tiny_config(tiny_cache, tmp_path / run, steps=steps, ckpt_every=3, data={"val_fraction": 0.0},
+                           optim=optim)
+
+    straight = _fit(cfg("straight", 8, decay_every_samples=10))  # batch 2: the first decay at step 5
+    _fit(cfg("resumed", 3))  # the constant lr (200k samples per decay)
+    resumed = _fit(cfg("resumed", 8, decay_every_samples=10), resume=True)
+    assert resumed.step == straight.step == 8
+    assert resumed.optimizer.param_groups[0]["lr"] == pytest.approx(2e-3 * 0.7 ** 1)  # steps 5 … 8: one decay
+    a, b = straight.model.state_dict(), resumed.model.state_dict()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    with pytest.raises(InputError, match="optim.decay_every_samples 10 -> 4"):
+        Trainer(cfg("resumed", 12, decay_every_samples=4), resume=True)  # would have decayed at step 2
+
