@@ -88,6 +88,9 @@ SCHEDULE_OPTIONS = frozenset({"optim.schedule", "optim.decay", "optim.decay_ever
 """Options that act only through :func:`lr_factor`: a resumed run may change them where the factor they give is the
 same at every step taken so far (:func:`schedule_agrees`)."""
 
+SCHEDULE_CHECK_STEPS = 2_000_000
+"""The longest run :func:`schedule_agrees` compares step by step (a few seconds)."""
+
 
 def schedule_agrees(saved: dict[str, Any], cfg: TrainConfig, step: int, total_steps: int, train_pairs: int) -> bool:
     """Whether the lr schedule of ``saved`` (an ``asdict(TrainConfig)``) and of ``cfg`` give the same factor at every
@@ -96,13 +99,13 @@ def schedule_agrees(saved: dict[str, Any], cfg: TrainConfig, step: int, total_st
     ``cfg`` would have trained, and resuming it under ``cfg`` continues that run (e.g. a step decay whose first decay
     falls after the checkpoint)."""
     fields = {k.split(".", 1)[1]: saved.get("optim", {}).get(k.split(".", 1)[1]) for k in SCHEDULE_OPTIONS}
-    if any(v is None for v in fields.values()):
-        return False
+    if any(v is None for v in fields.values()) or not 0 <= step <= SCHEDULE_CHECK_STEPS:
+        return False  # an older or damaged file, or a run too long to check step by step: refused as before
     before = replace(cfg, optim=replace(cfg.optim, **fields))
     try:
         return all(lr_factor(s, before, total_steps, train_pairs) == lr_factor(s, cfg, total_steps, train_pairs)
                    for s in range(step + 1))
-    except ConfigError:
+    except (ConfigError, ArithmeticError, TypeError, ValueError):
         return False
 
 

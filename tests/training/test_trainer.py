@@ -56,6 +56,22 @@ def test_the_demo_presets_schedule_first_decays_after_the_demos_steps():
     assert lr_factor(4 * cfg.steps, cfg, train_pairs=216) == pytest.approx(0.7**3)  # 4x: three decays
 
 
+def test_schedule_agrees_only_where_every_step_taken_had_the_same_factor():
+    from dataclasses import asdict
+
+    from training.trainer import schedule_agrees
+
+    now = _cfg_lr(decay=0.7, decay_every_epochs=10, batch_size=4)  # 216 pairs: first decay at step 540
+    saved = asdict(_cfg_lr(decay=0.7, batch_size=4))  # the constant lr (200k samples per decay)
+    assert schedule_agrees(saved, now, 500, 2000, 216) and schedule_agrees(saved, now, 539, 2000, 216)
+    assert not schedule_agrees(saved, now, 540, 2000, 216)  # the step after the checkpoint would differ
+    for damaged in ({"decay_every_samples": 0}, {"decay": "x"}, {"lr_min": None}):
+        bad = asdict(_cfg_lr(decay=0.7, batch_size=4))
+        bad["optim"].update(damaged)
+        assert not schedule_agrees(bad, now, 500, 2000, 216), damaged  # refused, no traceback
+    assert not schedule_agrees(saved, now, 10**12, 10**12, 216)  # too long to compare: refused, not a hang
+
+
 def test_cosine_schedule_runs_from_lr_to_lr_min_over_the_run():
     cfg = _cfg_lr(schedule="cosine", lr=1e-3, lr_min=1e-4)
     cfg.steps = 1000
