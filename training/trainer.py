@@ -83,10 +83,11 @@ def lr_factor(step: int, cfg: TrainConfig, total_steps: int | None = None, train
     return max(o.decay ** (step * o.batch_size // period), floor)
 
 
-SCHEDULE_OPTIONS = frozenset({"optim.schedule", "optim.decay", "optim.decay_every_samples", "optim.decay_every_epochs",
-                              "optim.lr_min"})
-"""Options that act only through :func:`lr_factor`: a resumed run may change them where the factor they give is the
-same at every step taken so far (:func:`schedule_agrees`)."""
+SCHEDULE_FIELDS = ("schedule", "decay", "decay_every_samples", "decay_every_epochs", "lr_min")
+"""``OptimConfig`` fields that act only through :func:`lr_factor`: a resumed run may change them where the factor
+they give is the same at every step taken so far (:func:`schedule_agrees`)."""
+SCHEDULE_OPTIONS = frozenset(f"optim.{name}" for name in SCHEDULE_FIELDS)
+""":data:`SCHEDULE_FIELDS` as dotted option names."""
 
 SCHEDULE_CHECK_STEPS = 2_000_000
 """The longest run :func:`schedule_agrees` compares step by step (a few seconds)."""
@@ -98,9 +99,13 @@ def schedule_agrees(saved: dict[str, Any], cfg: TrainConfig, step: int, total_st
     optimiser already holds), over ``cfg``'s run length and ``train_pairs``. Then the run so far is exactly the run
     ``cfg`` would have trained, and resuming it under ``cfg`` continues that run (e.g. a step decay whose first decay
     falls after the checkpoint)."""
-    fields = {k.split(".", 1)[1]: saved.get("optim", {}).get(k.split(".", 1)[1]) for k in SCHEDULE_OPTIONS}
-    if any(v is None for v in fields.values()) or not 0 <= step <= SCHEDULE_CHECK_STEPS:
-        return False  # an older or damaged file, or a run too long to check step by step: refused as before
+    fields = {name: saved.get("optim", {}).get(name) for name in SCHEDULE_FIELDS}
+    if any(v is None for v in fields.values()):
+        return False  # an older or damaged file: refused as before
+    if all(fields[name] == getattr(cfg.optim, name) for name in SCHEDULE_FIELDS):
+        return True  # the same schedule (every resume without a change: no step-by-step check)
+    if not 0 <= step <= SCHEDULE_CHECK_STEPS:
+        return False  # too long to check step by step: refused as before
     before = replace(cfg, optim=replace(cfg.optim, **fields))
     try:
         return all(lr_factor(s, before, total_steps, train_pairs) == lr_factor(s, cfg, total_steps, train_pairs)
@@ -109,13 +114,13 @@ def schedule_agrees(saved: dict[str, Any], cfg: TrainConfig, step: int, total_st
         return False
 
 
-def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+def config_changes(saved: dict[str, Any], current: dict[str, Any], exempt: frozenset[str] = frozenset()) -> list[str]:
     """Options (dotted names) whose values differ between two ``asdict(TrainConfig)`` and that change
-    what a resumed run computes (everything but :data:`RESUMABLE_CHANGES`); options absent from either
-    side (added to the code since) are not compared."""
+    what a resumed run computes (everything but :data:`RESUMABLE_CHANGES` and ``exempt``); options absent from
+    either side (added to the code since) are not compared."""
     a, b = flatten(saved), flatten(current)
-    return [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted(a.keys() & b.keys())
-            if k not in RESUMABLE_CHANGES and a[k] != b[k]]
+    skip = RESUMABLE_CHANGES | exempt
+    return [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted(a.keys() & b.keys()) if k not in skip and a[k] != b[k]]
 
 
 def check_config(cfg: TrainConfig) -> None:
@@ -272,10 +277,8 @@ class Trainer:
     def _load(self, path: Path) -> None:
         ckpt = checkpoints.load_checkpoint(path, kind="flow")
         try:
-            changed = config_changes(ckpt["config"], asdict(self.cfg))
-            if changed and schedule_agrees(ckpt["config"], self.cfg, int(ckpt["step"]), self.steps,
-                                           len(self.train_idx)):
-                changed = [c for c in changed if c.split(" ", 1)[0] not in SCHEDULE_OPTIONS]
+            agrees = schedule_agrees(ckpt["config"], self.cfg, int(ckpt["step"]), self.steps, len(self.train_idx))
+            changed = config_changes(ckpt["config"], asdict(self.cfg), SCHEDULE_OPTIONS if agrees else frozenset())
             if changed:
                 raise InputError(path, f"written by a run with other settings ({'; '.join(changed)}); "
                                        "resume with the same settings or use a new run_dir")
