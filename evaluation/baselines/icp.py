@@ -147,7 +147,8 @@ def weakest_hold(src: np.ndarray, normals: np.ndarray) -> float:
     """The smallest eigenvalue of the point-to-plane normal equations per pair (``JᵀJ / N``) of the pairs' source
     points ``src`` (N, 3) with their targets' ``normals`` (N, 3) (the targets themselves do not enter): the twist
     taken about the pairs' centroid, its rotation scaled by their RMS distance from it, so that a unit motion along
-    an eigenvector moves the points by about a metre. 1 when every normal lies along the least held direction, 0 when none has a part along it."""
+    an eigenvector moves the points by about a metre. 1 when every normal lies along the least held direction, 0 when
+    none has a part along it."""
     centre = src.mean(0)
     spread = max(float(np.sqrt(((src - centre) ** 2).sum(1).mean())), 1e-9)
     jac = _plane_jacobian(src, normals, centre, spread)
